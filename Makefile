@@ -1,0 +1,49 @@
+# Two commands on a fresh machine with Python >= 3.11: `make run` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: run worker test lint bench bench-paper clean
+
+## run: create the virtual environment, install, serve http://127.0.0.1:8000 (embedded jobs)
+run: $(VENV)/.installed
+	$(BIN)/fnsi-service $(ARGS)
+
+## worker: start one Celery worker (needs FNSI_BROKER_URL=redis://...)
+worker: $(VENV)/.installed
+	$(BIN)/fnsi-worker $(ARGS)
+
+## test: install the dev extra, lint, and run the whole suite (starts a Redis if none answers)
+test: $(VENV)/.installed-dev
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+lint: $(VENV)/.installed-dev
+	$(BIN)/ruff check .
+
+## bench: timing benchmarks of the FNSI stages and of the Newmark integrator
+bench: $(VENV)/.installed-dev
+	$(BIN)/python benchmarks/fnsi_scaling.py
+	$(BIN)/python benchmarks/newmark.py
+
+## bench-paper: reproduce the paper's Section IV and write benchmarks/results/paper.md
+bench-paper: $(VENV)/.installed-dev
+	$(BIN)/python benchmarks/paper.py
+
+$(VENV)/.python-ok:
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \
+	  { echo "fnsi-service needs Python >= 3.11; set PYTHON=python3.11"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	touch $@
+
+$(VENV)/.installed: $(VENV)/.python-ok pyproject.toml
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-dev: $(VENV)/.python-ok pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $@ $(VENV)/.installed
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache
