@@ -1,0 +1,297 @@
+"""Measured periodic input-output records (paper Section II.B, IV.A).
+
+A measurement holds the input forces u and outputs y of one or several independent
+realisations of a periodic excitation, each recorded over an integer number of periods.
+Array convention: ``(realisations, samples, channels)``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Literal, get_args
+
+import numpy as np
+
+Quantity = Literal["displacement", "velocity", "acceleration"]
+QUANTITIES: tuple[str, ...] = get_args(Quantity)
+
+FileLike = str | Path | IO
+
+
+def _as_record(array: np.ndarray, name: str) -> np.ndarray:
+    """Return ``array`` as (realisations, samples, channels) float64, rejecting other ranks."""
+    a = np.asarray(array, dtype=np.float64)
+    if a.ndim == 1:
+        return a[None, :, None]
+    if a.ndim == 2:
+        return a[None]
+    if a.ndim == 3:
+        return a
+    raise ValueError(
+        f"{name} must be 1-D (samples,), 2-D (samples, channels) or 3-D "
+        f"(realisations, samples, channels); got an array of shape {a.shape}"
+    )
+
+
+def _names(names, count: int, prefix: str, what: str) -> tuple[str, ...]:
+    """Validated channel names, defaulting to ``prefix0, prefix1, ...``."""
+    if names is None:
+        return tuple(f"{prefix}{k}" for k in range(count))
+    result = tuple(str(n) for n in np.atleast_1d(np.asarray(names, dtype=str)))
+    if len(result) != count:
+        raise ValueError(
+            f"{what} has {len(result)} names for {count} channels; give one per column"
+        )
+    if len(set(result)) != len(result):
+        raise ValueError(f"{what} must be unique; got {list(result)}")
+    return result
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Periodic input-output record of a structure.
+
+    Attributes
+    ----------
+    u : ndarray, shape (realisations, samples, m)
+        Input forces [N].
+    y : ndarray, shape (realisations, samples, l)
+        Outputs in ``quantity`` units ([m], [m/s] or [m/s^2]).
+    fs : float
+        Sampling rate [Hz].
+    input_names, output_names : tuple of str
+        Channel names, unique within inputs and within outputs. An input named like an
+        output marks a force applied at that measured DOF (a driving point).
+    periods : int
+        Number of excitation periods in each realisation record; divides ``samples``.
+    quantity : {"displacement", "velocity", "acceleration"}
+        What ``y`` measures.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> m = Measurement.from_arrays(np.ones(8), np.zeros((8, 2)), fs=100.0, periods=2)
+    >>> m.n_outputs, m.period_length, m.output_names
+    (2, 4, ('y0', 'y1'))
+    """
+
+    u: np.ndarray
+    y: np.ndarray
+    fs: float
+    input_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    periods: int = 1
+    quantity: str = "displacement"
+
+    def __post_init__(self) -> None:
+        u, y = self.u, self.y
+        if u.ndim != 3 or y.ndim != 3:
+            raise ValueError("u and y must be 3-D (realisations, samples, channels); "
+                             "use Measurement.from_arrays for 1-D or 2-D arrays")
+        if u.shape[:2] != y.shape[:2]:
+            raise ValueError(
+                f"u and y must have the same realisations and samples; got u {u.shape[:2]} "
+                f"and y {y.shape[:2]} (realisations, samples)"
+            )
+        if u.shape[1] == 0 or u.shape[2] == 0 or y.shape[2] == 0:
+            raise ValueError(f"empty record: u {u.shape}, y {y.shape}; need samples, "
+                             "at least one input and one output")
+        for name, a in (("u", u), ("y", y)):
+            if not np.all(np.isfinite(a)):
+                bad = np.argwhere(~np.isfinite(a))[0]
+                raise ValueError(f"{name} contains NaN or infinite values (first at "
+                                 f"realisation {bad[0]}, sample {bad[1]}, channel {bad[2]})")
+        if not (np.isfinite(self.fs) and self.fs > 0):
+            raise ValueError(f"fs must be a positive sampling rate in Hz; got {self.fs}")
+        if int(self.periods) != self.periods or self.periods < 1:
+            raise ValueError(f"periods must be a positive integer; got {self.periods}")
+        if u.shape[1] % int(self.periods):
+            raise ValueError(f"periods={self.periods} does not divide the {u.shape[1]} samples "
+                             "per realisation; trim the record to whole periods")
+        if self.quantity not in QUANTITIES:
+            raise ValueError(f"quantity must be one of {QUANTITIES}; got {self.quantity!r}")
+        if len(self.input_names) != u.shape[2] or len(self.output_names) != y.shape[2]:
+            raise ValueError("one name per input and per output channel is required")
+        for what, names in (("input_names", self.input_names),
+                            ("output_names", self.output_names)):
+            if len(set(names)) != len(names):
+                raise ValueError(f"{what} must be unique; got {list(names)}")
+        object.__setattr__(self, "periods", int(self.periods))
+        object.__setattr__(self, "fs", float(self.fs))
+
+    @classmethod
+    def from_arrays(cls, u, y, fs: float, *, input_names=None, output_names=None,
+                    periods: int = 1, quantity: str = "displacement") -> Measurement:
+        """Build a measurement from 1-D, 2-D or 3-D arrays (see class docstring for axes).
+
+        Parameters
+        ----------
+        u, y : array_like
+            (samples,), (samples, channels) or (realisations, samples, channels).
+        fs : float
+            Sampling rate [Hz].
+        input_names, output_names : sequence of str, optional
+            Default ``u0, u1, ...`` and ``y0, y1, ...``.
+        periods : int
+            Periods per realisation record.
+        quantity : str
+            "displacement", "velocity" or "acceleration".
+        """
+        u3, y3 = _as_record(u, "u"), _as_record(y, "y")
+        return cls(u3, y3, float(fs), _names(input_names, u3.shape[2], "u", "input_names"),
+                   _names(output_names, y3.shape[2], "y", "output_names"), periods, quantity)
+
+    # -- properties ------------------------------------------------------------------------
+    @property
+    def n_inputs(self) -> int:
+        """Number m of input channels."""
+        return int(self.u.shape[2])
+
+    @property
+    def n_outputs(self) -> int:
+        """Number l of output channels."""
+        return int(self.y.shape[2])
+
+    @property
+    def n_samples(self) -> int:
+        """Samples per realisation."""
+        return int(self.u.shape[1])
+
+    @property
+    def n_realisations(self) -> int:
+        """Number of independent realisations."""
+        return int(self.u.shape[0])
+
+    @property
+    def period_length(self) -> int:
+        """Samples per period."""
+        return self.n_samples // self.periods
+
+    # -- channels --------------------------------------------------------------------------
+    def output_index(self, name: str) -> int:
+        """Column of output ``name`` in ``y``; ValueError listing the valid names."""
+        try:
+            return self.output_names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown output channel {name!r}; outputs are "
+                             f"{list(self.output_names)}") from None
+
+    def input_index(self, name: str) -> int:
+        """Column of input ``name`` in ``u``; ValueError listing the valid names."""
+        try:
+            return self.input_names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown input channel {name!r}; inputs are "
+                             f"{list(self.input_names)}") from None
+
+    def select(self, inputs=None, outputs=None) -> Measurement:
+        """Measurement restricted to the named inputs and outputs (None keeps all), in order."""
+        iu = [self.input_index(n) for n in inputs] if inputs is not None else None
+        iy = [self.output_index(n) for n in outputs] if outputs is not None else None
+        return Measurement(
+            self.u if iu is None else self.u[:, :, iu],
+            self.y if iy is None else self.y[:, :, iy],
+            self.fs,
+            self.input_names if iu is None else tuple(inputs),
+            self.output_names if iy is None else tuple(outputs),
+            self.periods,
+            self.quantity,
+        )
+
+    # -- NPZ -------------------------------------------------------------------------------
+    @classmethod
+    def from_npz(cls, file: FileLike) -> Measurement:
+        """Read the canonical NPZ dataset (DESIGN.md section 6), never unpickling.
+
+        Arrays ``u`` and ``y`` (2-D samples x channels, 1-D, or 3-D with realisations first),
+        scalar ``fs``; optional ``input_names``, ``output_names``, ``periods``, ``quantity``.
+        """
+        try:
+            with np.load(file, allow_pickle=False) as data:
+                missing = [k for k in ("u", "y", "fs") if k not in data.files]
+                if missing:
+                    raise ValueError(f"NPZ dataset lacks required arrays {missing}; it needs "
+                                     "u (samples x m), y (samples x l) and fs (scalar, Hz)")
+                fields = {k: data[k] for k in data.files}
+        except (OSError, EOFError) as err:
+            raise ValueError(f"not a readable NPZ file: {err}") from err
+        except ValueError as err:
+            if "pickle" in str(err).lower():
+                raise ValueError("NPZ contains object arrays; store names as unicode arrays "
+                                 "(object arrays are refused for safety)") from err
+            raise
+        fs = np.asarray(fields["fs"])
+        if fs.size != 1:
+            raise ValueError(f"fs must be a scalar sampling rate in Hz; got shape {fs.shape}")
+        quantity = str(fields["quantity"]) if "quantity" in fields else "displacement"
+        periods = int(fields["periods"]) if "periods" in fields else 1
+        return cls.from_arrays(fields["u"], fields["y"], float(fs), periods=periods,
+                               input_names=fields.get("input_names"),
+                               output_names=fields.get("output_names"), quantity=quantity)
+
+    def to_npz(self, file: FileLike) -> None:
+        """Write the canonical NPZ dataset (2-D u, y for a single realisation, else 3-D)."""
+        squeeze = self.n_realisations == 1
+        np.savez(file, u=self.u[0] if squeeze else self.u, y=self.y[0] if squeeze else self.y,
+                 fs=np.float64(self.fs), input_names=np.array(self.input_names, dtype=str),
+                 output_names=np.array(self.output_names, dtype=str),
+                 periods=np.int64(self.periods), quantity=np.str_(self.quantity))
+
+    # -- CSV -------------------------------------------------------------------------------
+    @classmethod
+    def from_csv(cls, file: FileLike, *, fs: float, inputs, outputs=None, periods: int = 1,
+                 quantity: str = "displacement") -> Measurement:
+        """Read a CSV whose header names the channels, one sample per row.
+
+        Parameters
+        ----------
+        file : path or text file
+            Comma-separated, first row channel names.
+        fs : float
+            Sampling rate [Hz].
+        inputs : sequence of str
+            Header names of the input (force) columns.
+        outputs : sequence of str, optional
+            Header names of the output columns; default every non-input column.
+        periods, quantity
+            As in :meth:`from_arrays`.
+        """
+        text = Path(file).read_text() if isinstance(file, str | Path) else file.read()
+        if isinstance(text, bytes):
+            text = text.decode()
+        header = next(csv.reader(io.StringIO(text)), None)
+        if not header:
+            raise ValueError("CSV is empty; the first row must name the channels")
+        header = [h.strip() for h in header]
+        inputs = [inputs] if isinstance(inputs, str) else list(inputs)
+        if outputs is None:
+            outputs = [h for k, h in enumerate(header) if h not in inputs or header.index(h) != k]
+        unknown = [n for n in (*inputs, *outputs) if n not in header]
+        if unknown:
+            raise ValueError(f"CSV has no column(s) {unknown}; header is {header}")
+        try:
+            data = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as err:
+            raise ValueError(f"CSV body must be numeric: {err}") from err
+        if data.shape[1] != len(header):
+            raise ValueError(f"CSV rows have {data.shape[1]} values for {len(header)} header names")
+        # a name may head two columns (force and response at one DOF, as to_csv writes
+        # them): inputs take the first such column, outputs the last
+        first = {h: k for k, h in reversed(list(enumerate(header)))}
+        last = {h: k for k, h in enumerate(header)}
+        u = data[:, [first[n] for n in inputs]]
+        y = data[:, [last[n] for n in outputs]]
+        return cls.from_arrays(u, y, fs, input_names=inputs, output_names=outputs, periods=periods,
+                               quantity=quantity)
+
+    def to_csv(self, file: FileLike) -> None:
+        """Write inputs then outputs, header of channel names (single realisation only)."""
+        if self.n_realisations != 1:
+            raise ValueError(f"CSV holds one realisation; this measurement has "
+                             f"{self.n_realisations}: use to_npz or select a realisation")
+        table = np.hstack([self.u[0], self.y[0]])
+        header = ",".join(self.input_names + self.output_names)
+        np.savetxt(file, table, delimiter=",", header=header, comments="", fmt="%.17g")

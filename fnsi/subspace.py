@@ -1,0 +1,420 @@
+"""Frequency-domain nonlinear subspace identification, FNSI (paper Section II.C-D, Eq. 8-14).
+
+Steps, for the extended input E (forces then basis functions) and the outputs Y on N
+lines z_k = exp(j 2 pi f_k / fs) (several realisations add columns with the same z_k):
+
+1. Data matrices Y_i (l i x N) and E_i ((m+s) i x N) of Eq. 9-11, block row p holding
+   z_k^p Y(k); real and imaginary parts side by side (2N real columns), since Gamma_i
+   and Lambda_i of Eq. 14 are real.
+2. Elimination of Lambda_i E_i (Eq. 14) by the orthogonal complement of the row space of
+   E_i, with QR factorisations and no projector matrix: the R_22 block of the LQ
+   factorisation of [E_i; Y_i] when the extended inputs outnumber the outputs, otherwise
+   Y_i - (Y_i Q_1) Q_1^T with Q_1 the thin QR factor of E_i^T (the same R_22 up to an
+   orthogonal factor, at lower cost for few inputs and many outputs).
+3. Optional weighting by the noise covariance C_V of the stacked outputs: block Toeplitz
+   with blocks G(d) = Re sum_k z_k^d C_Y(k) (block row a against b uses d = a - b).
+   The SVD is taken of L^-1 Y_perp with C_V = L L^T and Gamma_i = L U_n, which makes the
+   truncation statistically meaningful when channels have unequal noise.
+4. Dominant left singular vectors U (li x k, k = max_order + 20): exact (QR + SVD) when
+   the problem is small, otherwise randomised subspace iteration (Halko, Martinsson &
+   Tropp 2011, four power iterations), which costs O(l i N k) instead of O(l^2 i^2 N).
+5. A and C of any order n <= max_order from the shift property of Gamma_i = U[:, :n]
+   (Section II.D). One QR of the shifted Gamma_i of the largest order serves every order
+   (its leading n columns are the QR of the order-n problem), so each order costs a
+   triangular solve: the stabilisation diagram relies on it.
+6. B^e and D^e by linear least squares over all lines (Noel & Kerschen 2013):
+   min sum_k ||Y(k) - (C (z_k I - A)^-1 B^e + D^e) E(k)||^2, linear in (B^e, D^e). The
+   normal equations are formed through the eigendecomposition A = V diag(lambda) V^-1, at
+   O(N q^2 n^2) cost, and solved by Cholesky after equilibration.
+
+The extended-input columns are scaled to unit RMS for conditioning; the scaling is undone
+in B^e and D^e.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from fnsi.spectra import Spectra
+from fnsi.statespace import StateSpaceModel
+
+#: Extra singular vectors kept beyond ``max_order`` (randomised range finder oversampling).
+OVERSAMPLING = 20
+#: Power iterations of the randomised subspace iteration.
+POWER_ITERATIONS = 4
+#: Lines per chunk when forming the B^e, D^e normal equations (bounds memory).
+CHUNK_LINES = 512
+
+
+def data_columns(n_lines: int, n_realisations: int) -> int:
+    """Number of real columns 2 N R of the stacked data matrices."""
+    return 2 * n_lines * n_realisations
+
+
+def check_dimensions(n_lines: int, n_realisations: int, n_extended: int, n_outputs: int,
+                     block_rows: int, max_order: int) -> None:
+    """Validate block rows and order against the data (rules in the messages).
+
+    Rules: the 2 N R real columns must exceed the (q + l) i rows of [E_i; Y_i], so that
+    E_i can be eliminated while leaving room for the outputs; the order satisfies
+    1 <= n <= l (i - 1), so that the shift equation of Gamma_i (l (i - 1) rows) determines A.
+    """
+    if block_rows < 2:
+        raise ValueError(f"block_rows must be at least 2; got {block_rows}")
+    columns = data_columns(n_lines, n_realisations)
+    rows = (n_extended + n_outputs) * block_rows
+    if columns <= rows:
+        most = max(columns - 1, 0) // (n_extended + n_outputs)
+        raise ValueError(
+            f"too many block rows for the data: (m + s + l) i = ({n_extended} + {n_outputs}) "
+            f"x {block_rows} = {rows} rows need more than the {columns} real columns "
+            f"(2 x {n_lines} lines x {n_realisations} realisations); use block_rows <= {most}, "
+            "a wider band, more lines or fewer basis functions"
+        )
+    if not 1 <= max_order <= n_outputs * (block_rows - 1):
+        raise ValueError(
+            f"order {max_order} is too large for {block_rows} block rows and {n_outputs} "
+            f"outputs: it must satisfy 1 <= n <= l (i - 1) = {n_outputs * (block_rows - 1)}; "
+            "raise block_rows or lower the order"
+        )
+
+
+def memory_estimate(n_lines: int, n_realisations: int, n_extended: int, n_outputs: int,
+                    block_rows: int) -> int:
+    """Peak working memory of :func:`decompose` [bytes], before anything is allocated.
+
+    Real stacked Y_i^T and E_i^T, the thin Q factor of E_i^T, and the complex z-power
+    intermediates of the largest data matrix.
+    """
+    cols = data_columns(n_lines, n_realisations)
+    i, q, n_out = block_rows, n_extended, n_outputs
+    real = 8 * cols * i * (n_out + 2 * q)
+    complex_tmp = 16 * (cols // 2) * i * max(q, n_out)
+    chunk = 16 * min(CHUNK_LINES, cols // 2) * q * q * 2
+    return int(real + complex_tmp + chunk)
+
+
+def _stacked(X: np.ndarray, z: np.ndarray, block_rows: int, out: np.ndarray) -> None:
+    """Write the transpose of the real data matrix of Eq. 9-11 into ``out`` (2 K, i c).
+
+    Row k (and K + k for the imaginary part) holds [X(k), z_k X(k), ..., z_k^(i-1) X(k)].
+    """
+    K, c = X.shape
+    power = np.ones(K, dtype=complex)
+    for p in range(block_rows):
+        block = power[:, None] * X
+        out[:K, p * c:(p + 1) * c] = block.real
+        out[K:, p * c:(p + 1) * c] = block.imag
+        power *= z
+
+
+def _projected_outputs(E: np.ndarray, Y: np.ndarray, z: np.ndarray,
+                       block_rows: int) -> np.ndarray:
+    """Z with Z^T Z = Y_i P Y_i^T, P the projector onto the complement of the rows of E_i.
+
+    Two QR-based routes, the cheaper for the shape: with fewer extended inputs than
+    outputs, the thin Q_1 of E_i^T and Z = Y_i^T - Q_1 (Q_1^T Y_i^T) (2K x l i); otherwise
+    the R factor only of [E_i; Y_i]^T and Z = R_22 (l i x l i), which avoids forming Q_1.
+    """
+    K, q = E.shape
+    n_out = Y.shape[1]
+    qi, li = q * block_rows, n_out * block_rows
+    if q < n_out:
+        Et = np.empty((2 * K, qi))
+        _stacked(E, z, block_rows, Et)
+        Q1 = scipy.linalg.qr(Et, mode="economic", overwrite_a=True, check_finite=False)[0]
+        del Et
+        Z = np.empty((2 * K, li))
+        _stacked(Y, z, block_rows, Z)
+        Z -= Q1 @ (Q1.T @ Z)
+        return Z
+    data = np.empty((2 * K, qi + li))
+    _stacked(E, z, block_rows, data[:, :qi])
+    _stacked(Y, z, block_rows, data[:, qi:])
+    R = scipy.linalg.qr(data, mode="r", overwrite_a=True, check_finite=False)[0]
+    return np.triu(R[qi:qi + li, qi:])
+
+
+def _noise_weight(noise_covariance: np.ndarray, z: np.ndarray, block_rows: int) -> np.ndarray:
+    """Cholesky factor L of the stacked-output noise covariance C_V (block Toeplitz)."""
+    N, n_out, _ = noise_covariance.shape
+    d = np.arange(block_rows)
+    blocks = ((z[None, :] ** d[:, None]) @ noise_covariance.reshape(N, n_out * n_out)).real
+    blocks = blocks.reshape(block_rows, n_out, n_out)
+    a = d[:, None] - d[None, :]
+    tiles = np.where((a >= 0)[:, :, None, None], blocks[np.abs(a)],
+                     np.swapaxes(blocks[np.abs(a)], -1, -2))
+    cov = tiles.transpose(0, 2, 1, 3).reshape(block_rows * n_out, block_rows * n_out)
+    # a channel without measured noise would get infinite weight: a relative ridge keeps
+    # C_V positive definite and leaves such channels at the weight of the quietest one
+    ridge = 1e-10 * np.trace(cov) / cov.shape[0]
+    return np.linalg.cholesky(cov + ridge * np.eye(cov.shape[0]))
+
+
+def _dominant_subspace(Z: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Leading k left singular vectors and values of Z^T, with Z of shape (cols, rows).
+
+    Exact when rows <= 4 k (thin QR then SVD of R), else randomised subspace iteration.
+    """
+    cols, rows = Z.shape
+    if rows <= 4 * k:
+        R = scipy.linalg.qr(Z, mode="r", check_finite=False)[0][:rows]
+        U, s, _ = scipy.linalg.svd(R.T, full_matrices=False, check_finite=False)
+        return U[:, :k], s[:k]
+    rng = np.random.default_rng(0)
+    Q = np.linalg.qr(Z.T @ rng.standard_normal((cols, k)))[0]
+    for _ in range(POWER_ITERATIONS):
+        Q = np.linalg.qr(Z.T @ np.linalg.qr(Z @ Q)[0])[0]
+    _, s, Vh = np.linalg.svd(Z @ Q, full_matrices=False)
+    return Q @ Vh.T, s
+
+
+@dataclass(frozen=True)
+class SubspaceDecomposition:
+    """Result of the projection and SVD of FNSI, usable for any order up to max_order.
+
+    Attributes
+    ----------
+    singular_values : ndarray, shape (k,)
+        Leading singular values of the (weighted) projected output matrix, decreasing.
+    observability : ndarray, shape (l i, k)
+        Extended observability basis Gamma_i (Eq. 12) of the largest order, columns by
+        decreasing singular value (weighting undone).
+    spectra : Spectra
+        The spectra used, extended inputs scaled to unit RMS.
+    input_scale : ndarray, shape (q,)
+        RMS of each extended-input column before scaling.
+    block_rows : int
+        Index i of Eq. 9.
+    max_order : int
+        Largest order available.
+    n_inputs : int
+        Number m of measured inputs among the q extended inputs.
+    elements : tuple
+        Nonlinear elements whose basis functions are the last q - m extended inputs.
+    weighted : bool
+        Whether the noise weighting was applied.
+    shift_r, shift_rhs : ndarray, shape (k, k)
+        R of the thin QR of Gamma_i without its last block row, and Q^T times Gamma_i
+        without its first block row (shift property, Section II.D).
+    """
+
+    singular_values: np.ndarray
+    observability: np.ndarray
+    spectra: Spectra
+    input_scale: np.ndarray
+    block_rows: int
+    max_order: int
+    n_inputs: int
+    elements: tuple = field(default=())
+    weighted: bool = False
+    shift_r: np.ndarray | None = field(default=None, repr=False)
+    shift_rhs: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.shift_r is None:
+            n_out = self.n_outputs
+            Q, R = np.linalg.qr(self.observability[:-n_out])
+            object.__setattr__(self, "shift_r", R)
+            object.__setattr__(self, "shift_rhs", Q.T @ self.observability[n_out:])
+
+    @property
+    def n_outputs(self) -> int:
+        """Number l of outputs."""
+        return len(self.spectra.output_names)
+
+    def _check_order(self, order: int) -> int:
+        if int(order) != order or not 1 <= order <= self.max_order:
+            raise ValueError(f"order must be an integer in [1, {self.max_order}] (the "
+                             f"max_order of this decomposition); got {order}")
+        return int(order)
+
+    def state_matrices(self, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """A (n, n) and C (l, n) of order n from the shift property of Gamma_i.
+
+        Parameters
+        ----------
+        order : int
+            Model order n <= max_order.
+        """
+        n = self._check_order(order)
+        A = scipy.linalg.solve_triangular(self.shift_r[:n, :n], self.shift_rhs[:n, :n],
+                                          check_finite=False)
+        return A, self.observability[: self.n_outputs, :n].copy()
+
+    def model(self, order: int) -> StateSpaceModel:
+        """Identified model of order n with B^e, D^e from least squares over all lines.
+
+        Parameters
+        ----------
+        order : int
+            Model order n <= max_order.
+
+        Returns
+        -------
+        StateSpaceModel
+            B and D columns: the m inputs, then the basis functions (scaling undone).
+        """
+        A, C = self.state_matrices(order)
+        sp = self.spectra
+        B, D = input_matrices(A, C, sp.inputs, sp.outputs, sp.z)
+        return StateSpaceModel(
+            A=A, B=B / self.input_scale, C=C, D=D / self.input_scale, fs=sp.fs,
+            input_names=sp.input_names[: self.n_inputs], output_names=sp.output_names,
+            elements=tuple(self.elements),
+        )
+
+
+def decompose(spectra: Spectra, *, block_rows: int, max_order: int, weighting: bool = False,
+              n_inputs: int | None = None, elements: tuple = (),
+              memory_limit: float | None = None) -> SubspaceDecomposition:
+    """Eliminate the extended input and take the SVD of FNSI (Eq. 9-14, Section II.D).
+
+    Parameters
+    ----------
+    spectra : Spectra
+        Extended input E (inputs (R, N, q): forces then basis functions) and outputs Y
+        (R, N, l), displacement spectra.
+    block_rows : int
+        Index i of Eq. 9.
+    max_order : int
+        Largest model order needed (stabilisation diagram, chosen order).
+    weighting : bool
+        Weight by the output noise covariance (``spectra.noise_covariance`` required).
+    n_inputs : int, optional
+        Number m of measured forces among the q extended inputs (default q).
+    elements : tuple of NonlinearElement
+        Elements of the basis columns, carried to the model.
+    memory_limit : float, optional
+        Refuse, before allocating, when the estimate of :func:`memory_estimate` exceeds it
+        [bytes].
+
+    Returns
+    -------
+    SubspaceDecomposition
+
+    Examples
+    --------
+    >>> fs, z0 = 100.0, np.exp(-0.02 + 2j * np.pi * 0.1)  # one mode, 10 Hz, sampled at fs
+    >>> f = np.arange(1, 50) * fs / 100
+    >>> z = np.exp(2j * np.pi * f / fs)
+    >>> H = 1 / ((z - z0) * (z - z0.conjugate()))
+    >>> sp = Spectra(f, fs, np.ones((1, 49, 1)), H[None, :, None], ("u",), ("y",))
+    >>> A, C = decompose(sp, block_rows=4, max_order=2).state_matrices(2)
+    >>> np.round(np.sort_complex(np.linalg.eigvals(A)), 6) == np.round(np.sort_complex(
+    ...     np.array([z0.conjugate(), z0])), 6)
+    array([ True,  True])
+    """
+    E, Y = spectra.inputs, spectra.outputs
+    R, N, q = E.shape
+    n_out = Y.shape[2]
+    check_dimensions(N, R, q, n_out, block_rows, max_order)
+    if memory_limit is not None:
+        need = memory_estimate(N, R, q, n_out, block_rows)
+        if need > memory_limit:
+            raise ValueError(f"FNSI would need about {need / 2**20:.0f} MiB, above the limit "
+                             f"of {memory_limit / 2**20:.0f} MiB; reduce block_rows, lines, "
+                             "outputs or basis functions")
+    if weighting and spectra.noise_covariance is None:
+        raise ValueError("weighting needs the output noise covariance: compute the spectra "
+                         "with noise statistics (two or more kept periods)")
+    scale = np.sqrt(np.mean(np.abs(E) ** 2, axis=(0, 1)))
+    if np.any(scale == 0):
+        dead = [spectra.input_names[j] for j in np.flatnonzero(scale == 0)]
+        raise ValueError(f"extended inputs {dead} are zero on every analysis line (an "
+                         "element never activated, or an input without excitation in the "
+                         "band); remove them")
+    scaled = Spectra(spectra.frequencies, spectra.fs, E / scale, Y, spectra.input_names,
+                     spectra.output_names, spectra.noise_covariance)
+    Z = _projected_outputs((E / scale).reshape(R * N, q), Y.reshape(R * N, n_out),
+                           np.tile(spectra.z, R), block_rows)
+    L = _noise_weight(spectra.noise_covariance, spectra.z, block_rows) if weighting else None
+    if L is not None:
+        Z = scipy.linalg.solve_triangular(L, Z.T, lower=True, check_finite=False).T
+    k = min(max_order + OVERSAMPLING, n_out * block_rows)
+    U, s = _dominant_subspace(Z, k)
+    gamma = U if L is None else L @ U
+    return SubspaceDecomposition(
+        singular_values=s, observability=gamma, spectra=scaled, input_scale=scale,
+        block_rows=block_rows, max_order=max_order, n_inputs=q if n_inputs is None else n_inputs,
+        elements=tuple(elements), weighted=weighting,
+    )
+
+
+def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
+                   z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """B^e and D^e minimising sum_k ||Y(k) - (C (z_k I - A)^-1 B^e + D^e) E(k)||^2.
+
+    Real unknowns theta = vec([B; D]) with normal equations Re(sum_k Phi_k^H Phi_k) theta =
+    Re(sum_k Phi_k^H Y(k)), Phi_k = E(k)^T kron [C (z_k I - A)^-1, I]. With A = V diag(lam)
+    V^-1, Ct = C V, W = V^-1 and d_kr = 1 / (z_k - lam_r), every block reduces to sums over
+    the lines of products E_a^* E_b d_kr^* d_ks, formed by matrix products.
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, n)
+    C : ndarray, shape (l, n)
+    E : ndarray, shape (R, N, q), complex
+        Extended input spectra.
+    Y : ndarray, shape (R, N, l), complex
+        Output spectra.
+    z : ndarray, shape (N,), complex
+        z_k of the lines.
+
+    Returns
+    -------
+    B : ndarray, shape (n, q)
+    D : ndarray, shape (l, q)
+    """
+    n, n_out, q = A.shape[0], C.shape[0], E.shape[2]
+    lam, V = np.linalg.eig(A)
+    W = np.linalg.inv(V)
+    Ct = C @ V
+    E = E.reshape(-1, q)
+    Y = Y.reshape(-1, n_out)
+    zz = np.tile(z, E.shape[0] // z.shape[0])
+    T = np.zeros((q * q, n * n), dtype=complex)  # sum E_a^* E_b d_r^* d_s
+    S = np.zeros((q * q, n), dtype=complex)  # sum E_a^* E_b d_r^*
+    P = np.zeros(q * q, dtype=complex)  # sum E_a^* E_b
+    gB = np.zeros((q, n), dtype=complex)
+    Zy = Y @ Ct.conj()  # Ct^H Y(k), (K, n)
+    for start in range(0, E.shape[0], CHUNK_LINES):
+        sl = slice(start, start + CHUNK_LINES)
+        e, d = E[sl], 1.0 / (zz[sl, None] - lam[None, :])
+        F = (e.conj()[:, :, None] * e[:, None, :]).reshape(-1, q * q)
+        T += F.T @ (d.conj()[:, :, None] * d[:, None, :]).reshape(-1, n * n)
+        S += F.T @ d.conj()
+        P += F.sum(axis=0)
+        gB += e.conj().T @ (d.conj() * Zy[sl])
+    gD = E.conj().T @ Y  # (q, n_out)
+    T = T.reshape(q, q, n, n) * (Ct.conj().T @ Ct)
+    S = S.reshape(q, q, n)
+    P = P.reshape(q, q)
+    m = n + n_out
+    G = np.zeros((q, m, q, m), dtype=complex)
+    G[:, :n, :, :n] = np.swapaxes(W.conj().T @ T @ W, 1, 2)
+    BD = W.conj().T @ (S[..., None] * Ct.conj().T)  # blocks (a, b) of shape (n, n_out)
+    G[:, :n, :, n:] = np.swapaxes(BD, 1, 2)
+    G[:, n:, :, :n] = np.swapaxes(BD.transpose(1, 0, 3, 2).conj(), 1, 2)  # Hermitian
+    G[:, n:, :, n:] = P[:, None, :, None] * np.eye(n_out)[None, :, None, :]
+    g = np.concatenate([gB @ W.conj(), gD], axis=1)  # (q, m)
+    G = G.real.reshape(q * m, q * m)
+    theta = _solve_normal(G, g.real.reshape(q * m)).reshape(q, m).T
+    return theta[:n], theta[n:]
+
+
+def _solve_normal(G: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Solve symmetric positive (semi)definite normal equations after equilibration."""
+    diag = np.sqrt(np.diag(G))
+    diag[diag == 0] = 1.0
+    Gs = G / diag[:, None] / diag[None, :]
+    try:
+        x = scipy.linalg.cho_solve(scipy.linalg.cho_factor(Gs, check_finite=False),
+                                   g / diag, check_finite=False)
+    except np.linalg.LinAlgError:
+        # rank-deficient regression (e.g. collinear basis functions): minimum-norm solution
+        x = scipy.linalg.lstsq(Gs, g / diag, check_finite=False)[0]
+    return x / diag

@@ -1,0 +1,198 @@
+"""FNSI end to end on structures simulated with known parameters (paper Section IV)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from fnsi.identification import IdentificationSettings, identify
+from fnsi.nonlinear import NonlinearElement
+from fnsi.stiffness import curve_error_percent
+
+# Records: fs = 800 Hz, 20 s periods, 6 periods (1 discarded), excitation 3-45 Hz. The
+# sampling rate is ~18 times the band edge so that the basis functions of non-smooth
+# elements (kinks) alias little (the paper samples at 50 times the band edge); Newmark at
+# 3.2 kHz keeps its period error below 0.03 % up to 30 Hz.
+RECORD = dict(fs=800.0, period=16000, periods=6, oversample=4, band=(3.0, 45.0))
+BAND = (3.0, 45.0)
+BLOCK_ROWS = 8
+
+
+def unknown(element: NonlinearElement) -> NonlinearElement:
+    """The element as given to the identification: form known, coefficients unknown."""
+    return dataclasses.replace(element, coefficients=None)
+
+
+def relative_error(estimate, truth) -> np.ndarray:
+    return np.asarray(estimate) / np.asarray(truth) - 1.0
+
+
+@pytest.fixture(scope="session")
+def cubic(chain, simulate_record):
+    """3-DOF chain, cubic spring from DOF a to ground, 1 % output noise."""
+    element = NonlinearElement("polynomial", "a", exponent=3.0, coefficients=(1e9,))
+    model = chain(3, (element,))
+    return model, element, simulate_record(model, ["a"], rms=70.0, noise=0.01, **RECORD)
+
+
+@pytest.fixture(scope="session")
+def clearance(chain, simulate_record):
+    """Wheel-like 3-DOF system: clearance (dead zone) between DOFs a and b, 1 % noise."""
+    element = NonlinearElement("clearance", "a", "b", gap=3e-3, coefficients=(2e4,))
+    model = chain(3, (element,), mass=(1.0, 2.0, 2.0), couplings=(3e3, 2e4),
+                  grounds=(0.0, 0.0, 3e4), alpha=3.0)
+    return model, element, simulate_record(model, ["a"], rms=30.0, noise=0.01, **RECORD)
+
+
+@pytest.mark.parametrize("case", ["cubic", "clearance"])
+def test_strong_nonlinearity_modes_and_coefficient(case, request):
+    model, element, data = request.getfixturevalue(case)
+    truth = model.linear_modes()
+    linear = identify(data, IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                                   max_order=12))
+    # the excitation is strong: a purely linear identification sees the first
+    # resonance moved by at least 20 %
+    assert relative_error(linear.modal.frequencies[0], truth.frequencies[0]) >= 0.20
+    result = identify(data, IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                                   max_order=12, elements=(unknown(element),)))
+    assert result.modal.n_modes == 3
+    # 0.2 % and 3 %: the acceptance targets; with 1 % noise the scatter over noise seeds
+    # is about 0.1 % (frequency) and 1.5 % (damping)
+    np.testing.assert_array_less(np.abs(relative_error(result.modal.frequencies,
+                                                       truth.frequencies)), 0.002)
+    np.testing.assert_array_less(np.abs(relative_error(result.modal.damping_ratios,
+                                                       truth.damping_ratios)), 0.03)
+    (mu,) = result.coefficients
+    assert mu.method == "driving point"
+    # 1 %: acceptance target (observed scatter over seeds about 0.5 %)
+    assert abs(relative_error(mu.mean_real, element.coefficients[0])) < 0.01
+    assert mu.log10_real_imag >= 2.0
+
+
+def test_excited_line_set_gives_the_same_coefficient(cubic):
+    _, element, data = cubic
+    result = identify(data, IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                                   line_set="excited",
+                                                   elements=(unknown(element),)))
+    assert result.coefficients[0].frequencies.size == 840  # 20 s periods over 3-45 Hz
+    # 1 %: acceptance target, as with all lines
+    assert abs(relative_error(result.coefficients[0].mean_real, 1e9)) < 0.01
+
+
+def test_spline_with_automatic_knots_reconstructs_clearance(clearance):
+    _, element, data = clearance
+    spline = NonlinearElement("spline", "a", "b", intervals=14)
+    result = identify(data, IdentificationSettings(band=BAND, block_rows=6, order=6,
+                                                   max_order=8, elements=(spline,)))
+    (curve,) = result.stiffness
+    assert len(curve.element.knots) == 15
+    assert curve.x[0] < -0.012 and curve.x[-1] > 0.013  # the measured range
+    # 5 % RMS of the peak force: acceptance target (observed 1.3 %). The modes are not
+    # asserted: with a spline that only approximates the clearance, the misfit biases
+    # the underlying linear FRF (known gap, see the identification notes)
+    assert curve_error_percent(curve, element) < 5.0
+
+
+@pytest.fixture(scope="session")
+def mimo(chain, simulate_record):
+    """4-DOF chain, forces at a and c, cubic a-ground and clearance c-d."""
+    elements = (NonlinearElement("polynomial", "a", exponent=3.0, coefficients=(5e8,)),
+                NonlinearElement("clearance", "c", "d", gap=2e-3, coefficients=(1e4,)))
+    model = chain(4, elements)
+    return model, elements, simulate_record(model, ["a", "c"], rms=50.0, noise=0.01, **RECORD)
+
+
+def test_mimo_two_elements(mimo):
+    model, elements, data = mimo
+    truth = model.linear_modes()
+    result = identify(data, IdentificationSettings(
+        band=BAND, block_rows=BLOCK_ROWS, order=8, max_order=16,
+        elements=tuple(unknown(e) for e in elements)))
+    np.testing.assert_array_less(np.abs(relative_error(result.modal.frequencies,
+                                                       truth.frequencies)), 0.002)
+    for mu, element in zip(result.coefficients, elements, strict=True):
+        # 2 %: acceptance target for the MIMO case
+        assert abs(relative_error(mu.mean_real, element.coefficients[0])) < 0.02, mu.name
+
+
+@pytest.fixture(scope="session")
+def remote_force(chain, simulate_record):
+    """Cubic spring at DOF a, force at DOF c (paper IV.C situation)."""
+    element = NonlinearElement("polynomial", "a", exponent=3.0, coefficients=(1e9,))
+    model = chain(3, (element,))
+    return model, element, simulate_record(model, ["c"], rms=90.0, noise=0.01, **RECORD)
+
+
+def test_coefficient_with_force_away_from_element(remote_force):
+    _, element, data = remote_force
+    result = identify(data, IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                                   max_order=12, elements=(unknown(element),)))
+    (mu,) = result.coefficients
+    assert mu.method == "modal synthesis"
+    # 2 %: acceptance target for the synthesised FRF columns
+    assert abs(relative_error(mu.mean_real, element.coefficients[0])) < 0.02
+
+
+def test_coefficient_refused_without_driving_point(remote_force):
+    _, element, data = remote_force
+    result = identify(data, IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                                   max_order=12, outputs=("a", "b"),
+                                                   elements=(unknown(element),)))
+    (mu,) = result.coefficients
+    assert not mu.identifiable and mu.values is None
+    assert "driving point" in mu.reason
+    assert np.isnan(mu.mean_real)
+    assert result.stiffness == ()
+
+
+def test_auto_order_progress_and_json(cubic):
+    _, element, data = cubic
+    calls = []
+    result = identify(data, IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS,
+                                                   max_order=16, elements=(unknown(element),)),
+                      progress=lambda fraction, message: calls.append(fraction))
+    assert result.order == 6
+    assert result.stabilisation is not None and result.stabilisation.auto_order == 6
+    assert calls == sorted(calls) and calls[-1] == 1.0
+    assert set(result.timings) >= {"decomposition", "stabilisation", "model", "physical"}
+    payload = json.loads(json.dumps(result.to_json()))
+    assert payload["order"] == 6 and len(payload["modes"]) == 3
+    assert payload["coefficients"][0]["method"] == "driving point"
+
+
+def test_progress_can_cancel(cubic):
+    def cancel(fraction, message):
+        raise RuntimeError("cancelled")
+
+    with pytest.raises(RuntimeError, match="cancelled"):
+        identify(cubic[2], IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6),
+                 progress=cancel)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (dict(band=(3.0, 500.0)), "Nyquist"),
+    (dict(block_rows=3000), "too many block rows"),
+    (dict(order=40), "too large"),
+    (dict(elements=(NonlinearElement("clearance", "a", "z", gap=1e-3),)), "unknown output"),
+    (dict(outputs=("a", "q")), "unknown output channel"),
+    (dict(discard_periods=6), "leaves no period"),
+    (dict(memory_limit_mb=1.0), "MiB"),
+])
+def test_bad_settings_are_refused_with_the_reason(cubic, change, message):
+    settings = dict(band=BAND, block_rows=BLOCK_ROWS, order=6) | change
+    with pytest.raises(ValueError, match=message):
+        identify(cubic[2], IdentificationSettings(**settings))
+
+
+def test_weighting_needs_two_kept_periods(cubic):
+    with pytest.raises(ValueError, match="two kept periods"):
+        identify(cubic[2], IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                                  weighting=True, discard_periods=5))
+
+
+def test_non_increasing_knots_are_refused():
+    with pytest.raises(ValueError, match="increasing"):
+        NonlinearElement("spline", "a", knots=(-1.0, 1.0, 0.5))

@@ -1,0 +1,128 @@
+"""Physical space: modes and nonlinear coefficients from a state-space model (Eq. 15-18)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from fnsi.modal import Coefficient, modal_table, nonlinear_coefficients
+from fnsi.nonlinear import NonlinearElement
+from fnsi.statespace import StateSpaceModel
+
+FS = 200.0
+FREQUENCIES = np.linspace(3.0, 45.0, 50)
+
+
+def exact_model(structure, inputs, elements, outputs=None, mu=(2.0e4, 1.0e4)):
+    """Discrete model with the exact poles and residues of ``structure`` (reciprocal).
+
+    A = expm(A_c / fs) keeps the eigenvectors of Eq. 3-4, so the residues C v w^T B of
+    every pole are those of the continuous structure: symmetric, as reciprocity requires.
+    Basis columns are -mu_j (B_c[:, dof] - B_c[:, ref]) (Eq. 4, 17).
+    """
+    r = structure.n_dofs
+    Minv = np.linalg.inv(structure.M)
+    Ac = np.block([[np.zeros((r, r)), np.eye(r)],
+                   [-Minv @ structure.K, -Minv @ structure.C]])
+    Bc = np.vstack([np.zeros((r, r)), Minv])
+    index = structure.dof_index
+    columns = [Bc[:, index(p)] for p in inputs]
+    for element, value in zip(elements, mu, strict=False):
+        b = Bc[:, index(element.dof)] - (0 if element.ref is None else Bc[:, index(element.ref)])
+        columns.append(-value * b)
+    outputs = structure.dof_names if outputs is None else outputs
+    C = np.eye(r, 2 * r)[[index(o) for o in outputs]]
+    B = np.column_stack(columns)
+    return StateSpaceModel(scipy.linalg.expm(Ac / FS), B, C, np.zeros((len(outputs), B.shape[1])),
+                           FS, tuple(inputs), tuple(outputs), tuple(elements))
+
+
+@pytest.fixture
+def structure(chain):
+    return chain(3)
+
+
+def test_modal_table_recovers_the_structure_modes(structure):
+    model = exact_model(structure, ["a"], ())
+    found = modal_table(model.A, model.C, FS, model.output_names)
+    truth = structure.linear_modes()
+    np.testing.assert_allclose(found.frequencies, truth.frequencies, rtol=1e-10)
+    np.testing.assert_allclose(found.damping_ratios, truth.damping_ratios, rtol=1e-8)
+    # same shapes up to rounding: both are scaled to a unit largest entry
+    np.testing.assert_allclose(found.shapes, truth.shapes, atol=1e-8)
+
+
+def test_modal_table_drops_non_physical_poles(structure):
+    model = exact_model(structure, ["a"], ())
+    s_unstable = 0.01 * 2 * np.pi * 15 + 2j * np.pi * 15
+    s_far = -0.02 * 2 * np.pi * 90 + 2j * np.pi * 90
+    extra = [np.array([[0.95]])]  # real pole
+    for s in (s_unstable, s_far):
+        lam = np.exp(s / FS)
+        extra.append(np.array([[lam.real, lam.imag], [-lam.imag, lam.real]]))
+    A = scipy.linalg.block_diag(model.A, *extra)
+    C = np.hstack([model.C, np.ones((3, 5))])
+    kept = modal_table(A, C, FS, model.output_names, band=(3.0, 45.0))
+    np.testing.assert_allclose(kept.frequencies, structure.linear_modes().frequencies,
+                               rtol=1e-10)
+    everything_but_real = modal_table(A, C, FS, model.output_names)
+    assert everything_but_real.n_modes == 4  # 90 Hz kept without a band, unstable dropped
+
+
+@pytest.mark.parametrize(("inputs", "element", "method"), [
+    (["a"], NonlinearElement("polynomial", "a"), "driving point"),
+    (["a"], NonlinearElement("clearance", "a", "b", gap=1e-3), "driving point"),
+    (["b"], NonlinearElement("clearance", "a", "b", gap=1e-3), "driving point"),
+    (["c"], NonlinearElement("clearance", "a", "b", gap=1e-3), "modal synthesis"),
+    (["c"], NonlinearElement("polynomial", "a"), "modal synthesis"),
+])
+def test_coefficients_are_recovered_exactly(structure, inputs, element, method):
+    model = exact_model(structure, inputs, (element,))
+    (mu,) = nonlinear_coefficients(model, FREQUENCIES)
+    assert mu.method == method
+    # exact model: only rounding (and, for the synthesis, the D-free residue sum) differ
+    np.testing.assert_allclose(mu.values, 2.0e4, rtol=1e-7)
+    assert mu.log10_real_imag > 6 and mu.variation < 1e-7
+
+
+def test_coefficients_refused_without_driving_point(structure):
+    element = NonlinearElement("polynomial", "a")
+    model = exact_model(structure, ["c"], (element,), outputs=("a", "b"))
+    (mu,) = nonlinear_coefficients(model, FREQUENCIES)
+    assert mu.values is None and "driving point" in mu.reason
+    assert mu.to_json()["identifiable"] is False
+
+
+def test_explicit_driving_point_mapping(structure):
+    element = NonlinearElement("polynomial", "a")
+    model = exact_model(structure, ["c"], (element,))
+    renamed = StateSpaceModel(model.A, model.B, model.C, model.D, FS, ("force",),
+                              model.output_names, model.elements)
+    (refused,) = nonlinear_coefficients(renamed, FREQUENCIES)
+    assert refused.values is None
+    (mu,) = nonlinear_coefficients(renamed, FREQUENCIES, {"force": "c"})
+    np.testing.assert_allclose(mu.values, 2.0e4, rtol=1e-7)
+    by_convention = StateSpaceModel(model.A, model.B, model.C, model.D, FS, ("F_c",),
+                                    model.output_names, model.elements)
+    (mu,) = nonlinear_coefficients(by_convention, FREQUENCIES)  # "F_<dof>" naming
+    np.testing.assert_allclose(mu.values, 2.0e4, rtol=1e-7)
+
+
+def test_two_elements_mimo(chain):
+    structure = chain(4)
+    elements = (NonlinearElement("polynomial", "a"),
+                NonlinearElement("clearance", "c", "d", gap=1e-3))
+    model = exact_model(structure, ["a", "c"], elements)
+    first, second = nonlinear_coefficients(model, FREQUENCIES)
+    np.testing.assert_allclose(first.values, 2.0e4, rtol=1e-7)
+    np.testing.assert_allclose(second.values, 1.0e4, rtol=1e-7)
+
+
+def test_quality_criteria():
+    values = np.array([100 + 1j, 110 - 1j, 90 + 1j])
+    c = Coefficient("k", 0, 0, np.arange(3.0), values, "driving point")
+    assert c.mean_real == pytest.approx(100.0)
+    assert c.log10_real_imag == pytest.approx(np.mean(np.log10([100, 110, 90])))
+    assert c.variation == pytest.approx(np.std([100, 110, 90]) / 100)
+    assert c.to_json(spectrum=True)["values"][0] == [100.0, 1.0]

@@ -1,0 +1,77 @@
+"""Spectra on the analysis lines, noise statistics and periodic integration (Eq. 6)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fnsi.measurement import Measurement
+from fnsi.spectra import band_lines, integrate_periodic, noise_covariance, output_spectra
+
+
+def test_line_count_of_the_paper():
+    # IV.A: 6 kept periods of 30,000 samples at 2.5 kHz over 5-50 Hz
+    assert band_lines(6 * 30000, 2500.0, (5.0, 50.0)).size == 3240
+    assert band_lines(30000, 2500.0, (5.0, 50.0)).size == 540
+
+
+def test_dft_scaling_of_eq_6_and_excited_lines():
+    fs, M, periods = 100.0, 200, 3
+    t = np.arange(periods * M) / fs
+    u = 2.0 * np.cos(2 * np.pi * 5.0 * t)  # 5 Hz: line 10 of a period
+    data = Measurement.from_arrays(u, u[:, None], fs, periods=periods)
+    full = output_spectra(data, (4.0, 6.0), discard_periods=0, line_set="all")
+    excited = output_spectra(data, (4.0, 6.0), discard_periods=0, line_set="excited")
+    # Eq. 6: a cosine of amplitude a gives a sqrt(M) / 2 on its line (M samples analysed)
+    peak = np.abs(full.inputs[0, :, 0]).max()
+    assert peak == pytest.approx(2.0 * np.sqrt(periods * M) / 2)
+    assert full.frequencies[np.argmax(np.abs(full.inputs[0, :, 0]))] == pytest.approx(5.0)
+    assert np.abs(excited.inputs[0, :, 0]).max() == pytest.approx(2.0 * np.sqrt(M) / 2)
+    assert full.n_lines == periods * excited.n_lines  # half-open band [4, 6) Hz
+
+
+@pytest.mark.parametrize("quantity,times", [("velocity", 1), ("acceleration", 2)])
+def test_displacement_from_velocity_or_acceleration_is_exact(quantity, times):
+    fs, n = 64.0, 256
+    t = np.arange(n) / fs
+    w = 2 * np.pi * np.array([2.0, 5.0])
+    x = np.cos(w[0] * t) + 0.3 * np.sin(w[1] * t)
+    derivative = {1: -w[0] * np.sin(w[0] * t) + 0.3 * w[1] * np.cos(w[1] * t),
+                  2: -w[0] ** 2 * np.cos(w[0] * t) - 0.3 * w[1] ** 2 * np.sin(w[1] * t)}[times]
+    measured = Measurement.from_arrays(np.ones(n), derivative[:, None] + 0.0, fs, periods=2,
+                                       quantity=quantity)
+    reference = Measurement.from_arrays(np.ones(n), x[:, None], fs, periods=2)
+    got = output_spectra(measured, (1.0, 10.0), discard_periods=0).outputs
+    exact = output_spectra(reference, (1.0, 10.0), discard_periods=0).outputs
+    np.testing.assert_allclose(got, exact, atol=1e-12)  # rounding only
+    back = integrate_periodic(derivative[None, :, None], fs, times)[0, :, 0]
+    np.testing.assert_allclose(back, x, atol=1e-12)
+
+
+def test_noise_covariance_from_period_spread():
+    rng = np.random.default_rng(0)
+    periods, M, sigma = 40, 128, np.array([0.5, 2.0])
+    y = rng.standard_normal((1, periods * M, 2)) * sigma
+    band = (1.0, 40.0)
+    cov_all = noise_covariance(y, periods, 100.0, band, "all")
+    cov_exc = noise_covariance(y, periods, 100.0, band, "excited")
+    assert cov_all.shape == (band_lines(periods * M, 100.0, band).size, 2, 2)
+    # white noise of variance s^2 gives s^2 per line with the 1/sqrt(M) scaling; the mean
+    # of ~2000 chi-square estimates is within a few % of it
+    np.testing.assert_allclose(np.mean(cov_all[:, [0, 1], [0, 1]].real, axis=0), sigma**2,
+                               rtol=0.05)
+    np.testing.assert_allclose(np.mean(cov_exc[:, [0, 1], [0, 1]].real, axis=0),
+                               sigma**2 / periods, rtol=0.05)
+    assert abs(np.mean(cov_all[:, 0, 1])) < 0.05 * sigma.prod()  # independent channels
+
+
+def test_noise_needs_two_periods_and_band_below_nyquist():
+    data = Measurement.from_arrays(np.ones(100), np.ones(100), 100.0, periods=2)
+    with pytest.raises(ValueError, match="at least two kept periods"):
+        output_spectra(data, (1.0, 10.0), discard_periods=1, noise=True)
+    with pytest.raises(ValueError, match="Nyquist"):
+        output_spectra(data, (1.0, 60.0))
+    with pytest.raises(ValueError, match="discard_periods"):
+        output_spectra(data, (1.0, 10.0), discard_periods=2)
+    with pytest.raises(ValueError, match="line_set"):
+        output_spectra(data, (1.0, 10.0), line_set="odd")
