@@ -1,0 +1,196 @@
+"""Nonlinear elements: basis values against closed forms, Eq. 19-22 splines, JSON, errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from fnsi.nonlinear import (
+    NonlinearElement,
+    NonlinearityKind,
+    basis_value,
+    element_force,
+    spline_slope_matrix,
+)
+
+X = np.linspace(-3.0, 3.0, 121)
+
+ELEMENTS = [
+    NonlinearElement("polynomial", "a", "b", exponent=3.0, coefficients=(2.0,)),
+    NonlinearElement("polynomial", "a", exponent=2.0, signed=False, coefficients=(-1.0,)),
+    NonlinearElement("clearance", "NC2w_Z", "NC2b_Z", gap=1.5, coefficients=(100.0,)),
+    NonlinearElement("clearance", "a", gap_negative=0.5, gap_positive=1.0, coefficients=(3.0,)),
+    NonlinearElement("clearance", "a", gap=2.0, side="negative", coefficients=(40.0,)),
+    NonlinearElement("piecewise_linear", "a", breakpoints=(-1.0, 0.5), coefficients=(1.0, 2.0)),
+    NonlinearElement("spline", "a", "b", knots=(-2.0, -0.7, 0.5, 1.5, 3.0),
+                     coefficients=(1.0, -2.0, 0.5, 3.0, 4.0)),
+    NonlinearElement("spline", "a", intervals=9),
+    NonlinearElement("coulomb_friction", "a", width=0.01, coefficients=(5.0,)),
+    NonlinearElement("quadratic_damping", "a", "b", coefficients=(0.3,)),
+]
+
+
+def test_clearance_basis_is_dead_zone_with_contract_truth():
+    e = ELEMENTS[2]
+    x = np.array([-3.0, -1.5, -1.0, 0.0, 1.4, 1.5, 2.0])
+    np.testing.assert_array_equal(e.basis(x)[:, 0], [-1.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5])
+    np.testing.assert_array_equal(e.force(x), 100.0 * e.basis(x)[:, 0])
+
+
+def test_asymmetric_and_one_sided_clearance():
+    x = np.array([-2.0, -0.6, -0.4, 0.9, 1.2, 3.0])
+    np.testing.assert_allclose(ELEMENTS[3].basis(x)[:, 0], [-1.5, -0.1, 0, 0, 0.2, 2.0])
+    np.testing.assert_allclose(ELEMENTS[4].basis(x)[:, 0], [0, 0, 0, 0, 0, 0])
+    np.testing.assert_allclose(ELEMENTS[4].basis(np.array([-2.5, 2.5]))[:, 0], [-0.5, 0.0])
+    positive = NonlinearElement("clearance", "a", gap=1.0, side="positive")
+    np.testing.assert_allclose(positive.basis(x)[:, 0], [0, 0, 0, 0, 0.2, 2.0])
+
+
+def test_piecewise_linear_hinges_equal_symmetric_clearance():
+    hinges = NonlinearElement("piecewise_linear", "a", breakpoints=(-1.5, 1.5))
+    clearance = NonlinearElement("clearance", "a", gap=1.5)
+    np.testing.assert_array_equal(hinges.basis(X).sum(axis=1), clearance.basis(X)[:, 0])
+
+
+def test_polynomial_signed_and_unsigned():
+    np.testing.assert_allclose(ELEMENTS[0].basis(X)[:, 0], X**3, rtol=1e-14)
+    np.testing.assert_allclose(ELEMENTS[1].basis(X)[:, 0], X**2, rtol=1e-14)
+    half = NonlinearElement("polynomial", "a", exponent=1.5)
+    np.testing.assert_allclose(half.basis(X)[:, 0], np.sign(X) * np.abs(X) ** 1.5, rtol=1e-14)
+
+
+def test_velocity_kinds():
+    v = np.array([-1.0, -0.005, 0.0, 0.02])
+    np.testing.assert_allclose(ELEMENTS[8].basis(np.zeros(4), v)[:, 0], np.tanh(v / 0.01))
+    np.testing.assert_allclose(ELEMENTS[9].basis(np.zeros(4), v)[:, 0], v * np.abs(v))
+    with pytest.raises(ValueError, match="velocity"):
+        ELEMENTS[9].basis(np.zeros(4))
+
+
+def test_spline_reproduces_equilibrium_cubic_exactly():
+    # g = a x^2 + b x^3 satisfies Eq. 20-22 (C2, g(0) = g'(0) = 0); Eq. 19-22 have a unique
+    # solution, so the spline through its knot values is that cubic up to rounding.
+    e = ELEMENTS[6]
+    q = np.asarray(e.knots)
+    a, b = 0.7, -0.3
+    inside = np.linspace(q[0], q[-1], 501)
+    np.testing.assert_allclose(e.basis(inside) @ (a * q**2 + b * q**3),
+                               a * inside**2 + b * inside**3, atol=1e-13)
+    # linear extrapolation with the end slopes outside the knots
+    slope = 2 * a * q[[0, -1]] + 3 * b * q[[0, -1]] ** 2
+    outside = np.array([q[0] - 0.5, q[-1] + 0.5])
+    np.testing.assert_allclose(e.basis(outside) @ (a * q**2 + b * q**3),
+                               a * q[[0, -1]] ** 2 + b * q[[0, -1]] ** 3
+                               + slope * np.array([-0.5, 0.5]), rtol=1e-13)
+
+
+def test_spline_basis_interpolates_knots_and_meets_equilibrium():
+    e = ELEMENTS[6]
+    np.testing.assert_allclose(e.basis(np.asarray(e.knots)), np.eye(5), atol=1e-14)
+    at_zero = np.array([basis_value(e.kernel_kind, e.kernel_parameters, 0, j, 0.0, 0.0)
+                        for j in range(5)])
+    np.testing.assert_allclose(at_zero[:, 0], 0.0, atol=1e-15)  # Eq. 21 for every basis
+    np.testing.assert_allclose(at_zero[:, 1], 0.0, atol=1e-14)  # Eq. 22
+
+
+def test_spline_slope_matrix_satisfies_continuity_equation_20():
+    q = np.array([-1.0, -0.2, 0.3, 1.1, 2.0])
+    ordinates = np.array([0.4, -1.0, 2.0, 0.5, 1.5])
+    slopes = spline_slope_matrix(q) @ ordinates
+    h = np.diff(q)
+    for k in range(1, 4):
+        lhs = (slopes[k - 1] / h[k - 1] + 2 * (1 / h[k - 1] + 1 / h[k]) * slopes[k]
+               + slopes[k + 1] / h[k])
+        rhs = 3 * ((ordinates[k] - ordinates[k - 1]) / h[k - 1] ** 2
+                   + (ordinates[k + 1] - ordinates[k]) / h[k] ** 2)
+        assert lhs == pytest.approx(rhs, rel=1e-12)
+
+
+def test_resolve_places_uniform_knots_with_zero_mid_interval():
+    x = np.concatenate([np.linspace(-1.2, 3.0, 50), [0.0]])
+    e = NonlinearElement("spline", "a", intervals=7).resolve(x)
+    q = np.asarray(e.knots)
+    assert q.size == 8 and q[0] <= x.min() and q[-1] >= x.max()
+    np.testing.assert_allclose(np.diff(q), (3.0 + 1.2) / 6, rtol=1e-12)
+    k = np.searchsorted(q, 0.0) - 1
+    assert (0.0 - q[k]) / (q[k + 1] - q[k]) == pytest.approx(0.5)
+    # a one-sided record still brackets the equilibrium
+    assert NonlinearElement("spline", "a", intervals=3).resolve(np.array([0.5, 2.0])).knots[0] < 0
+
+
+def test_kernel_derivatives_match_finite_differences():
+    # central differences with step 1e-6 away from kinks: truncation ~1e-12 relative
+    for e in ELEMENTS:
+        if e.coefficients is None:
+            continue
+        c = np.asarray(e.coefficients)
+
+        def force(x, v, e=e, c=c):
+            return element_force(e.kernel_kind, e.kernel_parameters, 0, c, 0, e.n_basis, x, v)
+        for x, v in [(-2.7, -0.013), (-0.31, 0.004), (1.73, 0.021), (2.9, -0.3)]:
+            f, fx, fv = force(x, v)
+            d = 1e-6
+            assert fx == pytest.approx((force(x + d, v)[0] - force(x - d, v)[0]) / (2 * d),
+                                       rel=1e-5, abs=1e-6), e.name
+            assert fv == pytest.approx((force(x, v + d)[0] - force(x, v - d)[0]) / (2 * d),
+                                       rel=1e-5, abs=1e-6), e.name
+            assert f == pytest.approx(float(e.force(np.array([x]), np.array([v]))[0]), rel=1e-14)
+
+
+@pytest.mark.parametrize("element", ELEMENTS, ids=lambda e: e.kind.value)
+def test_json_round_trip(element):
+    d = json.loads(json.dumps(element.to_json()))
+    assert d["kind"] == element.kind.value and d["dof"] == element.dof
+    back = NonlinearElement.from_json(d)
+    assert back == element
+    assert back.basis_names == element.basis_names
+
+
+def test_json_shape_of_design_document():
+    assert ELEMENTS[2].to_json() == {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z",
+                                     "gap": 1.5, "side": "both", "coefficients": [100.0]}
+    assert ELEMENTS[2].kind is NonlinearityKind.CLEARANCE
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"kind": "cubic", "dof": "a"}, "unknown nonlinearity kind"),
+        ({"kind": "clearance", "dof": "a", "gap": 0.0}, "positive"),
+        ({"kind": "clearance", "dof": "a", "gap": -1.0}, "positive"),
+        ({"kind": "clearance", "dof": "a"}, "needs a gap"),
+        ({"kind": "clearance", "dof": "a", "gap_positive": 1.0}, "negative side"),
+        ({"kind": "clearance", "dof": "a", "gap": 1.0, "gap_positive": 2.0}, "not both"),
+        ({"kind": "clearance", "dof": "a", "gap": 1.0, "side": "up"}, "side"),
+        ({"kind": "clearance", "dof": "a", "gap": 1.0, "coefficients": (1.0, 2.0)}, "one finite"),
+        ({"kind": "clearance", "dof": "a", "gap": 1.0, "knots": (-1.0, 1.0)}, "not parameters"),
+        ({"kind": "spline", "dof": "a", "knots": (-1.0, 1.0, 0.5)}, "strictly increasing"),
+        ({"kind": "spline", "dof": "a", "knots": (-1.0, 0.0, 1.0)}, "strictly inside"),
+        ({"kind": "spline", "dof": "a", "knots": (0.5, 1.0, 2.0)}, "strictly inside"),
+        ({"kind": "spline", "dof": "a"}, "knots .* or intervals"),
+        ({"kind": "spline", "dof": "a", "intervals": 1}, ">= 2"),
+        ({"kind": "spline", "dof": "a", "knots": (-1.0, 1.0), "intervals": 3}, "intervals"),
+        ({"kind": "piecewise_linear", "dof": "a", "breakpoints": (1.0, 1.0)}, "increasing"),
+        ({"kind": "coulomb_friction", "dof": "a"}, "width"),
+        ({"kind": "coulomb_friction", "dof": "a", "width": 0.0}, "positive"),
+        ({"kind": "polynomial", "dof": "a", "exponent": 0.0}, "positive"),
+        ({"kind": "polynomial", "dof": "a", "exponent": "three"}, "positive"),
+        ({"kind": "polynomial", "dof": "a", "signed": "no"}, "true or false"),
+        ({"kind": "polynomial", "dof": "a", "ref": "a"}, "another DOF"),
+        ({"kind": "polynomial", "dof": ""}, "non-empty"),
+    ],
+)
+def test_bad_parameters_raise_clear_errors(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        NonlinearElement(**kwargs)
+
+
+def test_bad_use_raises_clear_errors():
+    with pytest.raises(ValueError, match="resolve"):
+        ELEMENTS[7].basis(X)
+    with pytest.raises(ValueError, match="no coefficients"):
+        NonlinearElement("clearance", "a", gap=1.0).force(X)
+    with pytest.raises(ValueError, match="unknown nonlinear element keys"):
+        NonlinearElement.from_json({"kind": "clearance", "dof": "a", "gap": 1.0, "gapp": 2})
+    with pytest.raises(ValueError, match="1-D"):
+        ELEMENTS[0].basis(np.zeros((3, 2)))
