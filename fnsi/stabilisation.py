@@ -1,0 +1,406 @@
+"""Stabilisation diagram and automatic model-order choice (paper Section IV.A, Figure 5).
+
+The poles of the identified linear state-space model are tracked over increasing model
+orders, all obtained from the single singular value decomposition of the projected data
+matrices (Section II.D). A pole at order n is compared with the poles at the previous
+order of the diagram (the lower order is the reference, as in the paper) and receives one
+of the five classes of Figure 5:
+
+=============  ========  ============================================================
+class          symbol    meaning
+=============  ========  ============================================================
+``new``        dot       no pole of the previous order within the frequency tolerance
+``frequency``  cross     stable in natural frequency
+``damping``    square    stable in frequency and damping ratio
+``shape``      circle    stable in frequency and mode shape (MACX)
+``stable``     triangle  stable in frequency, damping ratio and MACX (full)
+=============  ========  ============================================================
+
+Mode shapes are compared with the MACX of Vacher, Jacquier & Bucharles (2010), the MAC
+extended to complex modes, because the damping of the structures of interest is strongly
+non-proportional (the paper's reference 13).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Protocol
+
+import numpy as np
+
+from fnsi.modal import ModalTable, modal_table
+
+
+class StateMatrixSource(Protocol):
+    """Anything that returns (A, C) of a discrete-time model of a given order.
+
+    :class:`fnsi.subspace.SubspaceDecomposition` satisfies it: every order comes from the
+    same singular value decomposition, so the diagram costs one eigenproblem per order.
+    """
+
+    def state_matrices(self, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """State matrix A (order, order) and output matrix C (l, order)."""
+        ...
+
+
+class PoleClass(StrEnum):
+    """Stabilisation class of a pole (paper Figure 5), from worst to best."""
+
+    NEW = "new"
+    FREQUENCY = "frequency"
+    DAMPING = "damping"
+    SHAPE = "shape"
+    STABLE = "stable"
+
+
+@dataclass(frozen=True)
+class StabilisationTolerances:
+    """Criteria of the stabilisation diagram.
+
+    Attributes
+    ----------
+    frequency : float
+        Largest relative change of natural frequency [-] (default 1 %).
+    damping : float
+        Largest relative change of damping ratio [-] (default 5 %).
+    macx : float
+        Smallest MACX between the two mode shapes [-] (default 0.98).
+    """
+
+    frequency: float = 0.01
+    damping: float = 0.05
+    macx: float = 0.98
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.frequency < 1.0:
+            raise ValueError(f"frequency tolerance must be in (0, 1); got {self.frequency}")
+        if not 0.0 < self.damping < 1.0:
+            raise ValueError(f"damping tolerance must be in (0, 1); got {self.damping}")
+        if not 0.0 < self.macx <= 1.0:
+            raise ValueError(f"MACX threshold must be in (0, 1]; got {self.macx}")
+
+
+@dataclass(frozen=True)
+class OrderPoles:
+    """The physical poles identified at one model order, with their classes.
+
+    Attributes
+    ----------
+    order : int
+        Model order n (number of states).
+    modes : ModalTable
+        Natural frequencies [Hz], damping ratios [-] and complex shapes (p, l) of the p
+        physical poles of that order, as kept by :func:`fnsi.modal.modal_table`:
+        oscillatory and stable, one per complex-conjugate pair, in or near the band.
+    classes : tuple of PoleClass
+        Class of each pole against the previous order of the diagram.
+    """
+
+    order: int
+    modes: ModalTable
+    classes: tuple[PoleClass, ...]
+
+
+def macx_matrix(shapes_a: np.ndarray, shapes_b: np.ndarray) -> np.ndarray:
+    """MACX between every pair of complex mode shapes (paper Figure 6).
+
+    MACX(a, b) = (|a^H b| + |a^T b|)^2 / ((a^H a + |a^T a|) (b^H b + |b^T b|)),
+    the modal assurance criterion extended to complex modes by Vacher et al. (2010). It
+    compares a shape with the subspace spanned by the other shape and its conjugate, so it
+    is 1 for shapes equal up to any complex factor or conjugation, 0 for orthogonal ones
+    and symmetric in its arguments.
+
+    Parameters
+    ----------
+    shapes_a : ndarray, shape (na, l) or (l,), complex
+        Mode shapes, one per row, at l output channels.
+    shapes_b : ndarray, shape (nb, l) or (l,), complex
+        Mode shapes at the same channels.
+
+    Returns
+    -------
+    ndarray, shape (na, nb)
+        MACX values in [0, 1].
+
+    References
+    ----------
+    P. Vacher, B. Jacquier, A. Bucharles, "Extensions of the MAC criterion to complex
+    modes", Proceedings of ISMA 2010, Leuven, pp. 2713-2726.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> phi = np.array([1.0 + 0.2j, -0.5j, 0.3])
+    >>> round(float(macx_matrix(phi, (2 - 1j) * phi.conj())[0, 0]), 12)
+    1.0
+    """
+    a = np.atleast_2d(np.asarray(shapes_a, dtype=complex))
+    b = np.atleast_2d(np.asarray(shapes_b, dtype=complex))
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
+        raise ValueError(
+            f"mode shapes must be (modes, channels) arrays over the same channels; "
+            f"got shapes {a.shape} and {b.shape}"
+        )
+    norm_a = np.sum(np.abs(a) ** 2, axis=1) + np.abs(np.sum(a * a, axis=1))
+    norm_b = np.sum(np.abs(b) ** 2, axis=1) + np.abs(np.sum(b * b, axis=1))
+    if np.any(norm_a == 0.0) or np.any(norm_b == 0.0):
+        raise ValueError("a mode shape is identically zero; MACX is undefined for it")
+    numerator = (np.abs(a.conj() @ b.T) + np.abs(a @ b.T)) ** 2
+    # Rounding can push identical shapes a few ulps above 1.
+    return np.minimum(numerator / np.outer(norm_a, norm_b), 1.0)
+
+
+def classify_poles(
+    current: ModalTable, previous: ModalTable, tolerances: StabilisationTolerances
+) -> tuple[PoleClass, ...]:
+    """Class of each pole of ``current`` against the poles of the lower order ``previous``.
+
+    A pole takes the best class that any pole of the previous order within the frequency
+    tolerance grants it, so a close pair of modes (e.g. 28.26 and 28.41 Hz in Table 1)
+    is matched shape-by-shape rather than to the nearest frequency only. Tolerances on
+    frequency and damping are relative to the previous (reference) pole.
+
+    Parameters
+    ----------
+    current, previous : ModalTable
+        Poles of the higher and the lower (reference) model order.
+    tolerances : StabilisationTolerances
+        Criteria.
+
+    Returns
+    -------
+    tuple of PoleClass
+        One class per pole of ``current``.
+    """
+    if current.n_modes == 0:
+        return ()
+    if previous.n_modes == 0:
+        return (PoleClass.NEW,) * current.n_modes
+    f_ref = previous.frequencies[None, :]
+    z_ref = previous.damping_ratios[None, :]
+    freq_ok = np.abs(current.frequencies[:, None] - f_ref) <= tolerances.frequency * f_ref
+    damp_ok = np.abs(current.damping_ratios[:, None] - z_ref) <= tolerances.damping * z_ref
+    shape_ok = macx_matrix(current.shapes, previous.shapes) >= tolerances.macx
+    levels = (
+        (PoleClass.STABLE, freq_ok & damp_ok & shape_ok),
+        (PoleClass.SHAPE, freq_ok & shape_ok),
+        (PoleClass.DAMPING, freq_ok & damp_ok),
+        (PoleClass.FREQUENCY, freq_ok),
+    )
+    classes = []
+    for k in range(current.n_modes):
+        classes.append(next((cls for cls, ok in levels if ok[k].any()), PoleClass.NEW))
+    return tuple(classes)
+
+
+def choose_order(orders: Sequence[int], stable_counts: Sequence[int], persistence: int = 3
+                 ) -> int | None:
+    """Automatic model order: the reference order of the first plateau of stable modes.
+
+    Let N(n) be the number of fully stable poles in the band at order n, each tested
+    against the previous order n' of the diagram. The rule takes the lowest order n with
+    N(n) > 0 such that N does not grow over the next ``persistence`` orders, and returns
+    its reference order n': the poles of n' are the ones n confirms, and the lower order
+    avoids spurious poles. This is the paper's choice of order 18 when 8 modes are fully
+    stable at 20 (Section IV.A). For clean data of k modes in the band it gives 2k.
+
+    Parameters
+    ----------
+    orders : sequence of int
+        Increasing model orders of the diagram.
+    stable_counts : sequence of int
+        N(n) for each order (N of the lowest order is 0: it has no reference).
+    persistence : int
+        Number of following orders over which N must not grow.
+
+    Returns
+    -------
+    int or None
+        The chosen order, or None when no pole is fully stable at any order (then the
+        user must choose an order from the diagram).
+
+    Examples
+    --------
+    >>> choose_order([2, 4, 6, 8, 10, 12], [0, 1, 2, 2, 2, 2], persistence=2)
+    4
+    """
+    if persistence < 1:
+        raise ValueError(f"persistence must be at least 1 order; got {persistence}")
+    counts = np.asarray(stable_counts)
+    for j in range(1, len(counts)):
+        following = counts[j + 1: j + 1 + persistence]
+        if counts[j] > 0 and np.all(following <= counts[j]):
+            return int(orders[j - 1])
+    return None
+
+
+def _stable_counts(poles: Sequence[OrderPoles], band: tuple[float, float]) -> np.ndarray:
+    """Number of fully stable poles with a natural frequency inside ``band``, per order."""
+    low, high = band
+    return np.array([
+        sum(
+            cls is PoleClass.STABLE and low <= f <= high
+            for cls, f in zip(p.classes, p.modes.frequencies, strict=True)
+        )
+        for p in poles
+    ], dtype=int)
+
+
+@dataclass(frozen=True)
+class StabilisationDiagram:
+    """Poles over model orders with their stabilisation classes (paper Figure 5).
+
+    Attributes
+    ----------
+    orders : tuple of int
+        Model orders, increasing.
+    poles : tuple of OrderPoles
+        Poles and classes at each order.
+    band : tuple of float
+        Analysis band (low, high) [Hz]; only poles inside count for the order choice.
+    tolerances : StabilisationTolerances
+        Criteria used for the classes.
+    persistence : int
+        Parameter of the order rule, see :func:`choose_order`.
+    auto_order : int or None
+        Order chosen by :func:`choose_order` (None if nothing stabilises). A user
+        overrides it simply by asking the identification for another order.
+    """
+
+    orders: tuple[int, ...]
+    poles: tuple[OrderPoles, ...]
+    band: tuple[float, float]
+    tolerances: StabilisationTolerances = field(default_factory=StabilisationTolerances)
+    persistence: int = 3
+    auto_order: int | None = None
+
+    def at(self, order: int) -> OrderPoles:
+        """Poles of one order of the diagram (ValueError listing the orders if absent)."""
+        if order not in self.orders:
+            raise ValueError(
+                f"order {order} is not in the diagram; choose one of {list(self.orders)}"
+            )
+        return self.poles[self.orders.index(order)]
+
+    def stable_counts(self) -> np.ndarray:
+        """Number of fully stable poles inside the band at each order, shape (orders,)."""
+        return _stable_counts(self.poles, self.band)
+
+    def to_json(self, *, shapes: bool = False) -> dict:
+        """JSON-ready description; mode shapes (as [re, im] pairs) only when asked."""
+        def pole_json(p: OrderPoles, k: int) -> dict:
+            entry = {
+                "frequency_hz": float(p.modes.frequencies[k]),
+                "damping_ratio": float(p.modes.damping_ratios[k]),
+                "class": str(p.classes[k]),
+            }
+            if shapes:
+                entry["shape"] = np.column_stack(
+                    (p.modes.shapes[k].real, p.modes.shapes[k].imag)).tolist()
+            return entry
+
+        return {
+            "orders": list(self.orders),
+            "band_hz": list(self.band),
+            "tolerances": {
+                "frequency": self.tolerances.frequency,
+                "damping": self.tolerances.damping,
+                "macx": self.tolerances.macx,
+            },
+            "persistence": self.persistence,
+            "auto_order": self.auto_order,
+            "stable_counts": self.stable_counts().tolist(),
+            "poles": [
+                {"order": p.order, "poles": [pole_json(p, k) for k in range(p.modes.n_modes)]}
+                for p in self.poles
+            ],
+        }
+
+
+def stabilisation_diagram(
+    decomposition: StateMatrixSource,
+    fs: float,
+    *,
+    max_order: int = 60,
+    orders: Sequence[int] | None = None,
+    band: tuple[float, float] | None = None,
+    output_names: Sequence[str] | None = None,
+    tolerances: StabilisationTolerances | None = None,
+    persistence: int = 3,
+) -> StabilisationDiagram:
+    """Build the stabilisation diagram from one subspace decomposition.
+
+    Parameters
+    ----------
+    decomposition : StateMatrixSource
+        Typically :class:`fnsi.subspace.SubspaceDecomposition` computed at ``max_order``.
+    fs : float
+        Sampling rate [Hz]; the state matrices are discrete-time with dt = 1 / fs.
+    max_order : int
+        Largest order; the default orders are the even ones 2, 4, ..., ``max_order``
+        (each vibration mode is a pair of complex-conjugate poles).
+    orders : sequence of int, optional
+        Explicit increasing orders instead of the default ones.
+    band : (float, float), optional
+        Analysis band [Hz]; default (0, fs / 2). Poles far outside it are dropped (see
+        :func:`fnsi.modal.modal_table`) and only poles inside count for the order rule.
+    output_names : sequence of str, optional
+        Names of the output channels (the columns of the mode shapes).
+    tolerances : StabilisationTolerances, optional
+        Criteria; default 1 % frequency, 5 % damping, MACX 0.98.
+    persistence : int
+        See :func:`choose_order`.
+
+    Returns
+    -------
+    StabilisationDiagram
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from scipy.signal import cont2discrete
+    >>> class Exact:  # one mode at 10 Hz, 2 % damping, seen by two sensors
+    ...     def state_matrices(self, order):
+    ...         w = 2 * np.pi * 10.0
+    ...         Ac = np.array([[0.0, 1.0], [-w * w, -2 * 0.02 * w]])
+    ...         A = cont2discrete((Ac, np.eye(2), np.eye(2), 0 * np.eye(2)), 1e-3)[0]
+    ...         return A, np.array([[1.0, 0.0], [0.5, 0.0]])
+    >>> d = stabilisation_diagram(Exact(), 1000.0, max_order=8)
+    >>> d.auto_order, [str(c) for c in d.at(4).classes]
+    (2, ['stable'])
+    """
+    if fs <= 0:
+        raise ValueError(f"sampling rate fs must be positive; got {fs} Hz")
+    chosen = tuple(range(2, max_order + 1, 2)) if orders is None else tuple(orders)
+    if len(chosen) < 2 or np.any(np.diff(chosen) <= 0):
+        raise ValueError(
+            f"the diagram needs at least two increasing orders; got {list(chosen)} "
+            f"(raise max_order or pass more orders)"
+        )
+    if chosen[0] < 1:
+        raise ValueError(f"model orders must be positive; got {chosen[0]}")
+    band = (0.0, fs / 2.0) if band is None else (float(band[0]), float(band[1]))
+    if not 0.0 <= band[0] < band[1]:
+        raise ValueError(f"band must be (low, high) with 0 <= low < high Hz; got {band}")
+    tolerances = StabilisationTolerances() if tolerances is None else tolerances
+
+    poles: list[OrderPoles] = []
+    previous: ModalTable | None = None
+    for order in chosen:
+        A, C = decomposition.state_matrices(order)
+        names = tuple(output_names) if output_names is not None else tuple(
+            f"y{k}" for k in range(C.shape[0]))
+        modes = modal_table(A, C, fs, names, band=band)
+        classes = (
+            (PoleClass.NEW,) * modes.n_modes if previous is None
+            else classify_poles(modes, previous, tolerances)
+        )
+        poles.append(OrderPoles(order=order, modes=modes, classes=classes))
+        previous = modes
+    return StabilisationDiagram(
+        orders=chosen, poles=tuple(poles), band=band, tolerances=tolerances,
+        persistence=persistence,
+        auto_order=choose_order(chosen, _stable_counts(poles, band), persistence),
+    )
