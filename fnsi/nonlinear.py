@@ -520,12 +520,14 @@ class NonlinearElement:
     def resolve(self, x) -> NonlinearElement:
         """Element with automatic spline knots placed from the measured displacement ``x``.
 
-        For a spline given by ``intervals`` L only: L uniform intervals of width
-        (max - min) / (L - 1) over the range of ``x`` extended to include 0, shifted so
-        that x = 0 sits at the middle of its interval (well-conditioned Eq. 21-22, and
-        0 is never a knot). The knots therefore cover the measured range with at most one
-        interval to spare. No knowledge of the nonlinearity is used. Other elements, and
-        splines with explicit knots, are returned unchanged.
+        For a spline given by ``intervals`` L only. The end knots are the measured
+        extremes (range extended to include 0), so that every knot ordinate is seen by
+        data: an end knot outside the measured range would leave its ordinate
+        unidentifiable, and Eq. 20-22 would spread that error over the whole curve.
+        Inside, a central interval of width h = range / L is centred on 0 (Eq. 21-22 are
+        best conditioned with 0 mid-interval, and 0 is never a knot), and each side is
+        split into near-h intervals. No knowledge of the nonlinearity is used. Other
+        elements, and splines with explicit knots, are returned unchanged.
 
         Parameters
         ----------
@@ -541,10 +543,15 @@ class NonlinearElement:
         if hi <= lo:
             raise ValueError(f"{self.name}: the measured displacement is identically zero; "
                              "cannot place spline knots")
-        L = self.intervals
-        h = (hi - lo) / (L - 1)
-        first = h * (math.floor(lo / h - 0.5) + 0.5)
-        knots = first + h * np.arange(L + 1)
+        h = (hi - lo) / self.intervals
+        # intervals left of the central one, in proportion to the negative range
+        left = min(max(round((-lo - 0.5 * h) / h), 0), self.intervals - 1)
+        right = self.intervals - 1 - left
+        centre = (max(lo, -0.5 * h) if left else lo - 0.5 * h,
+                  min(hi, 0.5 * h) if right else hi + 0.5 * h)
+        knots = np.concatenate([np.linspace(lo, centre[0], left + 1)[:-1] if left else [],
+                                centre,
+                                np.linspace(centre[1], hi, right + 1)[1:] if right else []])
         return dataclasses.replace(self, knots=tuple(knots.tolist()))
 
     # -- JSON ---------------------------------------------------------------------------------

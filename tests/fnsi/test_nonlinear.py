@@ -106,14 +106,17 @@ def test_spline_slope_matrix_satisfies_continuity_equation_20():
         assert lhs == pytest.approx(rhs, rel=1e-12)
 
 
-def test_resolve_places_uniform_knots_with_zero_mid_interval():
-    x = np.concatenate([np.linspace(-1.2, 3.0, 50), [0.0]])
-    e = NonlinearElement("spline", "a", intervals=7).resolve(x)
-    q = np.asarray(e.knots)
-    assert q.size == 8 and q[0] <= x.min() and q[-1] >= x.max()
-    np.testing.assert_allclose(np.diff(q), (3.0 + 1.2) / 6, rtol=1e-12)
+def test_resolve_spans_the_measured_range_with_zero_mid_interval():
+    x = np.linspace(-1.2, 3.0, 50)
+    q = np.asarray(NonlinearElement("spline", "a", intervals=7).resolve(x).knots)
+    # every ordinate must be seen by data: the end knots are the measured extremes
+    assert q.size == 8 and q[0] == x.min() and q[-1] == x.max()
+    assert np.all(np.diff(q) > 0)
     k = np.searchsorted(q, 0.0) - 1
-    assert (0.0 - q[k]) / (q[k + 1] - q[k]) == pytest.approx(0.5)
+    assert q[k] == pytest.approx(-q[k + 1]) and q[k + 1] == pytest.approx(4.2 / 7 / 2)
+    # the other intervals stay within a factor 1.5 of the nominal width
+    widths = np.delete(np.diff(q), k) / (4.2 / 7)
+    assert widths.min() > 2 / 3 and widths.max() < 1.5
     # a one-sided record still brackets the equilibrium
     assert NonlinearElement("spline", "a", intervals=3).resolve(np.array([0.5, 2.0])).knots[0] < 0
 
