@@ -40,7 +40,7 @@ LineSet = Literal["all", "excited"]
 LINE_SETS: tuple[str, ...] = ("all", "excited")
 
 #: Number of integrations from each measured quantity to displacement.
-_INTEGRATIONS = {"displacement": 0, "velocity": 1, "acceleration": 2}
+INTEGRATIONS = {"displacement": 0, "velocity": 1, "acceleration": 2}
 
 
 @dataclass(frozen=True)
@@ -170,7 +170,7 @@ def displacement_velocity(y: np.ndarray, fs: float, quantity: str,
     displacement : ndarray, shape (R, samples, l)
     velocity : ndarray, shape (R, samples, l), or None
     """
-    n = _INTEGRATIONS[quantity]
+    n = INTEGRATIONS[quantity]
     displacement = integrate_periodic(y, fs, n)
     return displacement, integrate_periodic(y, fs, n - 1) if velocity else None
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
@@ -11,12 +13,16 @@ if TYPE_CHECKING:
     from fnsi.nonlinear import NonlinearElement
 
 
+_NPZ_ARRAYS = ("A", "B", "C", "D", "fs", "input_names", "output_names", "elements")
+
+
 @dataclass(frozen=True)
 class StateSpaceModel:
     """Identified model x[k+1] = A x[k] + B^e e[k], y[k] = C x[k] + D^e e[k] (Eq. 8).
 
-    The extended input e = [u; -mu g(y)] is represented by its columns: the m measured
-    inputs first, then the basis functions of ``elements`` in order. Scaling used for
+    The extended input is e = [u; g(y)]: the m measured inputs first, then the basis
+    functions of ``elements`` in order; the coefficients -mu_j sit in the last s columns
+    of B^e and D^e (Eq. 4-5). Scaling used for
     conditioning during identification is already undone.
 
     Attributes
@@ -104,6 +110,38 @@ class StateSpaceModel:
         z = np.exp(2j * np.pi * np.asarray(frequencies, dtype=float) / self.fs)
         d = 1.0 / (z[:, None] - lam[None, :])
         return np.einsum("lr,kr,rq->klq", shapes, d, participation) + self.D
+
+    def to_npz(self, file: str | Path | BinaryIO) -> None:
+        """Write the model as ``model.npz``: matrices, fs, names, elements as JSON text.
+
+        Reload with :meth:`from_npz`; nothing in the file needs unpickling.
+        """
+        np.savez(file, A=self.A, B=self.B, C=self.C, D=self.D, fs=np.float64(self.fs),
+                 input_names=np.array(self.input_names, dtype=str),
+                 output_names=np.array(self.output_names, dtype=str),
+                 elements=np.str_(json.dumps([e.to_json() for e in self.elements])))
+
+    @classmethod
+    def from_npz(cls, file: str | Path | BinaryIO) -> StateSpaceModel:
+        """Read a model written by :meth:`to_npz` (``allow_pickle=False``).
+
+        Raises
+        ------
+        ValueError
+            If the file is not a model NPZ, naming the missing arrays.
+        """
+        from fnsi.nonlinear import NonlinearElement
+
+        with np.load(file, allow_pickle=False) as data:
+            missing = sorted(set(_NPZ_ARRAYS) - set(data.files))
+            if missing:
+                raise ValueError(f"not a model NPZ: arrays {missing} are missing; write it "
+                                 "with StateSpaceModel.to_npz")
+            return cls(data["A"], data["B"], data["C"], data["D"], float(data["fs"]),
+                       tuple(data["input_names"].tolist()),
+                       tuple(data["output_names"].tolist()),
+                       tuple(NonlinearElement.from_json(e)
+                             for e in json.loads(str(data["elements"]))))
 
     def to_json(self) -> dict:
         """JSON-ready matrices (nested lists), names, fs and elements."""

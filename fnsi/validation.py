@@ -1,0 +1,79 @@
+"""Model versus measurement: run an identified model with the measured input.
+
+DESIGN.md step 7. The identified nonlinear state-space model is driven to periodic
+steady state by one period of each realisation's measured input
+(:func:`fnsi.simulation.simulate_periodic`); FNSI models predict displacement, so the
+prediction is differentiated exactly (periodic data) into the measured quantity and
+compared with the kept periods of the measurement (:func:`fnsi.errors.model_errors`),
+per channel and per line, against the noise floor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fnsi.errors import ModelErrors, model_errors
+from fnsi.measurement import Measurement
+from fnsi.simulation import simulate_periodic
+from fnsi.spectra import INTEGRATIONS, integrate_periodic, kept_record
+from fnsi.statespace import StateSpaceModel
+
+#: The error spectra reach this multiple of the band's upper edge, so that harmonics
+#: created by an unmodelled nonlinearity show up above the identification band.
+ERROR_BAND_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """A model's prediction of a measurement and its errors.
+
+    Attributes
+    ----------
+    simulated : ndarray, shape (realisations, period_length, l)
+        One steady-state period of the model's outputs per realisation, in the measured
+        quantity.
+    errors : ModelErrors
+        NRMSE per channel and line against the noise floor of the kept periods.
+    """
+
+    simulated: np.ndarray
+    errors: ModelErrors
+
+
+def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
+            band_high: float) -> Comparison:
+    """Simulate ``model`` with the input of ``measurement`` and compare the outputs.
+
+    Parameters
+    ----------
+    model : StateSpaceModel
+        Identified model; its input and output names select the measured channels.
+    measurement : Measurement
+        Periodic measurement with at least ``discard_periods + 1`` periods.
+    discard_periods : int
+        Leading (transient) periods left out of the comparison.
+    band_high : float
+        Upper edge of the identification band [Hz]; the error spectra reach
+        ``ERROR_BAND_FACTOR`` times it (at most fs / 2).
+
+    Returns
+    -------
+    Comparison
+
+    Raises
+    ------
+    ValueError
+        If the measurement lacks a channel of the model, or the model cannot be
+        simulated (:class:`fnsi.simulation.SimulationDivergedError`).
+    """
+    data = measurement.select(inputs=model.input_names, outputs=model.output_names)
+    measured = kept_record(data.y, data.periods, discard_periods)
+    u = data.u[:, -data.period_length:]
+    periods = np.stack([simulate_periodic(model, u[r]).y for r in range(data.n_realisations)])
+    simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
+    high = min(data.fs / 2, ERROR_BAND_FACTOR * band_high)
+    errors = model_errors(measured, simulated, data.fs, periods=data.periods - discard_periods,
+                          output_names=data.output_names, band=(0.0, high))
+    return Comparison(simulated, errors)
