@@ -1,0 +1,27 @@
+"""``fnsi-service``: serve the HTTP API with uvicorn."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Parse --host/--port and serve the API (settings from the FNSI_* environment)."""
+    parser = argparse.ArgumentParser(
+        prog="fnsi-service",
+        description="FNSI REST service. Jobs run on an embedded runner unless FNSI_BROKER_URL "
+        "names a Celery broker served by fnsi-worker processes.")
+    parser.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    parser.add_argument("--log-level", default="info", help="uvicorn log level (default info)")
+    args = parser.parse_args(argv)
+
+    import uvicorn
+
+    from service.app import create_app
+
+    uvicorn.run(create_app(), host=args.host, port=args.port, log_level=args.log_level)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""RFC 9457 problem details: the one shape of every error response.
+
+Every failure, including unknown routes, validation errors and oversized bodies, is
+answered with ``application/problem+json`` and a ``detail`` telling the caller what to
+change. Validation errors list the fields at fault without echoing the submitted values
+(an upload's bytes never come back).
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+from http import HTTPStatus
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+MEDIA_TYPE = "application/problem+json"
+log = logging.getLogger("fnsi.service")
+
+
+DISK_FULL = ("the server is out of disk space; nothing stored earlier was lost. Retry later "
+             "or ask the operator to free space under FNSI_DATA_DIR")
+
+
+class FieldError(BaseModel):
+    """One invalid field of a request."""
+
+    loc: list[str | int] = Field(description="Path to the field, e.g. ['body', 'band', 0].",
+                                 examples=[["body", "block_rows"]])
+    msg: str = Field(description="What is wrong with it.",
+                     examples=["Input should be greater than or equal to 2"])
+    type: str = Field(description="Machine-readable error kind.", examples=["greater_than_equal"])
+
+
+class Problem(BaseModel):
+    """Error response (RFC 9457 problem details)."""
+
+    type: str = Field("about:blank", description="URI identifying the problem type.")
+    title: str = Field(description="Short summary of the problem type.", examples=["Not Found"])
+    status: int = Field(description="HTTP status code.", examples=[404])
+    detail: str = Field(description="What went wrong and what to change.",
+                        examples=["dataset ds_0123 does not exist or belongs to another key"])
+    instance: str | None = Field(None, description="Path of the request that failed.",
+                                 examples=["/v1/datasets/ds_0123"])
+    errors: list[FieldError] | None = Field(
+        None, description="Invalid fields, for validation errors (422) only.")
+
+
+class ProblemError(Exception):
+    """Raise from a route or dependency to answer with a problem document."""
+
+    def __init__(self, status: int, detail: str, headers: dict[str, str] | None = None):
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+        self.headers = headers
+
+
+def problem_response(request: Request, status: int, detail: str, *,
+                     errors: list[dict[str, Any]] | None = None,
+                     headers: dict[str, str] | None = None) -> JSONResponse:
+    """A problem+json response for ``request``."""
+    body = Problem(title=HTTPStatus(status).phrase, status=status, detail=detail,
+                   instance=request.url.path, errors=errors)
+    return JSONResponse(body.model_dump(exclude_none=True), status_code=status,
+                        media_type=MEDIA_TYPE, headers=headers)
+
+
+def _http_detail(exc: StarletteHTTPException, request: Request) -> str:
+    if exc.status_code == 404 and exc.detail == "Not Found":
+        return f"no route {request.url.path}; see /docs for the routes of this API"
+    if exc.status_code == 405:
+        return f"{request.method} is not allowed on {request.url.path}; see /docs"
+    return str(exc.detail)
+
+
+def install(app: FastAPI) -> None:
+    """Register the problem+json handlers on ``app``."""
+
+    @app.exception_handler(ProblemError)
+    async def _problem(request: Request, exc: ProblemError) -> JSONResponse:
+        return problem_response(request, exc.status, exc.detail, headers=exc.headers)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        return problem_response(request, exc.status_code, _http_detail(exc, request),
+                                headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [{"loc": [str(p) if not isinstance(p, int) else p for p in e["loc"]],
+                   "msg": e["msg"], "type": e["type"]} for e in exc.errors()]
+        summary = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in errors[:5])
+        media = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if any(e["loc"][:1] == ["body"] for e in errors) and media not in (
+                "application/json", "multipart/form-data"):
+            summary += (f" (the body was sent as {media or 'no content type'}: send JSON "
+                        "with Content-Type: application/json)")
+        return problem_response(request, 422, f"invalid request: {summary}", errors=errors)
+
+    @app.exception_handler(OSError)
+    async def _os_error(request: Request, exc: OSError) -> JSONResponse:
+        if exc.errno == errno.ENOSPC:
+            return problem_response(request, 507, DISK_FULL)
+        return await _unexpected(request, exc)
+
+    @app.exception_handler(Exception)
+    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return problem_response(request, 500, "internal error; the server log has the "
+                                "details. Retry later or report the request to the operator")
+
+
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    code: {"model": Problem, "description": HTTPStatus(code).phrase,
+           "content": {MEDIA_TYPE: {"schema": {"$ref": "#/components/schemas/Problem"}}}}
+    for code in (400, 401, 404, 413, 422, 507)
+}

@@ -1,0 +1,48 @@
+"""Artefacts of a job: plots (PNG), JSON results, models (NPZ)."""
+
+from __future__ import annotations
+
+import mimetypes
+from typing import Annotated
+
+from fastapi import APIRouter, Path
+from fastapi.responses import FileResponse, Response
+
+from service.deps import OwnJobDep, StoreDep
+from service.problems import ERROR_RESPONSES, ProblemError
+from service.schemas.jobs import Artefact
+
+router = APIRouter(prefix="/v1/jobs/{job_id}/artefacts", tags=["artefacts"],
+                   responses=ERROR_RESPONSES)
+
+_MEDIA_TYPES = {".png": "image/png", ".json": "application/json",
+                ".npz": "application/octet-stream", ".csv": "text/csv"}
+
+
+def _media_type(name: str) -> str:
+    suffix = name[name.rfind("."):] if "." in name else ""
+    return _MEDIA_TYPES.get(suffix) or mimetypes.guess_type(name)[0] or "application/octet-stream"
+
+
+@router.get("", response_model=list[Artefact], summary="List a job's artefacts")
+def list_artefacts(job: OwnJobDep, store: StoreDep) -> list[Artefact]:
+    """Files the job produced so far (complete once it succeeded)."""
+    return [Artefact(name=name, media_type=_media_type(name), size_bytes=size,
+                     url=f"/v1/jobs/{job.id}/artefacts/{name}")
+            for name, size in store.list_artefacts(job.id)]
+
+
+@router.get("/{name}", summary="Download an artefact", response_class=Response,
+            responses={200: {"description": "The artefact file.", "content": {
+                "image/png": {"schema": {"type": "string", "format": "binary"}},
+                "application/json": {"schema": {"type": "object"}},
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}})
+def get_artefact(job: OwnJobDep, store: StoreDep,
+                 name: Annotated[str, Path(description="Artefact name, e.g. frf.png.")]
+                 ) -> Response:
+    """One artefact of a job, by the name given in its listing."""
+    path = store.artefact_path(job.id, name)
+    if path is None:
+        known = [n for n, _ in store.list_artefacts(job.id)]
+        raise ProblemError(404, f"job {job.id} has no artefact {name!r}; it has {known}")
+    return FileResponse(path, media_type=_media_type(name), filename=name)

@@ -1,0 +1,125 @@
+"""Schemas of identification requests and of nonlinear elements."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    model_serializer,
+    model_validator,
+)
+
+from fnsi.nonlinear import NonlinearElement, NonlinearityKind
+
+MAX_BASIS = 1000
+"""Most basis functions per element (spline intervals, breakpoints): bounds the work a
+request can ask for before the library sees it."""
+
+
+class NonlinearElementSpec(BaseModel):
+    """A nonlinear element (DESIGN.md JSON shape): a restoring force f(x, v) between two
+    output channels (or one channel and ground), x = y[dof] - y[ref]. Only the parameters
+    of its kind may be given."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+        {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5},
+        {"kind": "spline", "dof": "NC2w_Z", "ref": "NC2b_Z", "intervals": 13}]})
+
+    kind: NonlinearityKind = Field(description="Functional form of the restoring force.")
+    dof: str = Field(description="Output channel on which +f acts.", examples=["NC2w_Z"])
+    ref: str | None = Field(None, description="Output channel on which -f acts; null for "
+                            "ground.", examples=["NC2b_Z"])
+    exponent: StrictFloat | None = Field(None, gt=0, description="polynomial: g = |x|^exponent "
+                                   "(sign(x) if signed) [-].", examples=[3.0])
+    signed: StrictBool | None = Field(None, description="polynomial: multiply by sign(x).")
+    gap: StrictFloat | None = Field(None, gt=0, description="clearance: symmetric gap [length "
+                              "unit of the outputs].", examples=[1.5])
+    gap_negative: StrictFloat | None = Field(None, gt=0, description="clearance: gap for x < 0.")
+    gap_positive: StrictFloat | None = Field(None, gt=0, description="clearance: gap for x > 0.")
+    side: Literal["both", "positive", "negative"] | None = Field(
+        None, description="clearance: which stops exist (one-sided stop).")
+    breakpoints: list[StrictFloat] | None = Field(
+        None, max_length=MAX_BASIS,
+        description="piecewise_linear: increasing hinge positions [length].")
+    knots: list[StrictFloat] | None = Field(
+        None, max_length=MAX_BASIS + 1, description="spline: increasing knot abscissas "
+        "[length], 0 strictly inside an interval (paper Eq. 19-22).")
+    intervals: StrictInt | None = Field(None, ge=2, le=MAX_BASIS,
+                                  description="spline: number of uniform "
+                                  "intervals over the measured range (automatic knots).",
+                                  examples=[13])
+    width: StrictFloat | None = Field(None, gt=0, description="coulomb_friction: velocity "
+                                "smoothing width [length/s], g = tanh(v / width).")
+    coefficients: list[StrictFloat] | None = Field(
+        None, max_length=MAX_BASIS + 1, description="mu_j per basis function: the truth "
+        "of a simulated element; ignored by identification.")
+
+    @model_validator(mode="after")
+    def _valid_for_library(self) -> NonlinearElementSpec:
+        # The library owns the rules of each kind; its message says what to change.
+        NonlinearElement.from_json(self.model_dump(mode="json"))
+        return self
+
+    @model_serializer(mode="wrap")
+    def _library_json(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Dump as fnsi.nonlinear reads it: the parameters that were given, and ref."""
+        return {k: v for k, v in handler(self).items() if v is not None or k == "ref"}
+
+
+class IdentificationRequest(BaseModel):
+    """An FNSI identification of one dataset (paper Section II)."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{
+        "dataset_id": "ds_5f1c0e2a9b7d4c3e8a10", "outputs": ["NC2w_Z", "NC2b_Z", "W_Z"],
+        "band": [5.0, 50.0], "block_rows": 100, "order": "auto", "max_order": 40,
+        "elements": [{"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5}]}]})
+
+    dataset_id: str = Field(description="Estimation dataset.")
+    validation_dataset_id: str | None = Field(
+        None, description="Separate dataset to compute validation errors on (same channels).")
+    inputs: list[str] | None = Field(None, min_length=1,
+                                     description="Input channels to use; default all.")
+    outputs: list[str] | None = Field(None, min_length=1,
+                                      description="Output channels to use; default all.")
+    band: tuple[StrictFloat, StrictFloat] = Field(description="Analysis band [Hz], low < high.",
+                                      examples=[[5.0, 50.0]])
+    block_rows: StrictInt = Field(description="Block rows i of the data matrices (Eq. 10); "
+                            "must exceed order / outputs.", ge=1, le=10_000, examples=[100])
+    order: StrictInt | Literal["auto"] = Field(
+        "auto", description="Model order n, or \"auto\" to choose it from the stabilisation "
+        "diagram.", examples=["auto", 20])
+    max_order: StrictInt = Field(60, ge=2, le=2000, description="Highest order of the "
+                                 "stabilisation diagram.", examples=[60])
+    line_set: Literal["all", "excited"] = Field(
+        "all", description="Spectral lines used: all in the band, or only the lines the "
+        "input excites.")
+    discard_periods: StrictInt = Field(1, ge=0, description="Leading periods dropped as "
+                                 "transient.", examples=[1])
+    weighting: StrictBool = Field(False, description="Weight the data by the noise covariance "
+                            "estimated from the periods.")
+    elements: list[NonlinearElementSpec] = Field(
+        default_factory=list, max_length=100, description="Nonlinear elements whose "
+        "coefficients are "
+        "identified; empty for a linear model.")
+    driving_points: list[tuple[str, str]] = Field(
+        default_factory=list, description="(input, output) pairs where the output is "
+        "measured at the point and direction of the force; scales the coefficients. "
+        "Outputs named like an input are driving points anyway.",
+        examples=[[["F_x1", "x1"]]])
+
+    @model_validator(mode="after")
+    def _band_increasing(self) -> IdentificationRequest:
+        low, high = self.band
+        if not 0 <= low < high:
+            raise ValueError(f"band must be [low, high] in Hz with 0 <= low < high; got "
+                             f"{list(self.band)}")
+        if isinstance(self.order, int) and not 1 <= self.order <= self.max_order:
+            raise ValueError(f"order {self.order} must lie in 1..max_order ({self.max_order})")
+        return self

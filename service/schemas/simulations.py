@@ -1,0 +1,176 @@
+"""Schemas of simulation requests: SmallSat presets and generic structural models."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    StrictFloat,
+    StrictInt,
+    Tag,
+    model_validator,
+)
+
+from service.schemas.identifications import NonlinearElementSpec
+
+MAX_SAMPLES = 20_000_000
+"""Most samples (periods x samples per period x realisations) one simulation may record;
+the paper's records are 240,000."""
+MAX_INTEGRATION_FACTOR = 64
+"""Largest fs_int / fs."""
+
+
+def _check_size(samples: int, fs: float, fs_int: float) -> None:
+    if samples > MAX_SAMPLES:
+        raise ValueError(f"{samples} samples requested; at most {MAX_SAMPLES} per "
+                         "simulation: use fewer periods or samples per period")
+    if fs_int / fs > MAX_INTEGRATION_FACTOR:
+        raise ValueError(f"fs_int / fs = {fs_int / fs:g}; at most {MAX_INTEGRATION_FACTOR}")
+
+
+class PresetSimulation(BaseModel):
+    """Simulated test of the SmallSat reference structure (DESIGN.md section 4).
+
+    ``single``: 100 N RMS at NC2w_Z (paper Table 3); ``multi``: 200 N RMS at the wheel W
+    along the X-Y diagonal (Table 8). The result is a new dataset; the truth (modes,
+    nonlinear coefficients, contact counts) is the job artefact ``truth.json``.
+    """
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+        {"preset": "single", "periods": 3, "samples_per_period": 2500, "seed": 1}]})
+
+    preset: Literal["single", "multi"] = Field(description="Excitation case of the paper.")
+    periods: StrictInt = Field(8, ge=1, le=1000, description="Periods simulated (the first ones "
+                         "hold the transient).", examples=[8])
+    samples_per_period: StrictInt = Field(30000, ge=16, le=10_000_000, description="Samples per "
+                                    "period at the 2.5 kHz output rate.", examples=[30000])
+    rms: StrictFloat | None = Field(None, gt=0, description="Excitation RMS [N]; default the "
+                              "preset's (100 N single, 200 N multi).", examples=[100.0])
+    seed: StrictInt = Field(0, ge=0, description="Seed of the random-phase multisine and noise.")
+    noise_percent: StrictFloat = Field(0.5, ge=0, le=100, description="Measurement noise RMS in "
+                                 "% of the RMS response at the bracket tip.", examples=[0.5])
+    outputs: list[str] | None = Field(
+        None, min_length=1, description="Measured DOFs, e.g. NC2w_Z; default all 39 "
+        "(13 nodes x X, Y, Z).", examples=[["NC2w_Z", "NC2b_Z", "W_Z"]])
+    quantity: Literal["displacement", "velocity", "acceleration"] = Field(
+        "displacement", description="What the outputs measure.")
+    fs: StrictFloat = Field(2500.0, gt=0, description="Measurement sampling rate [Hz].")
+    fs_int: StrictFloat = Field(20000.0, gt=0, description="Newmark integration rate [Hz], an "
+                          "integer multiple of fs.")
+    name: str | None = Field(None, max_length=200, description="Label of the new dataset.")
+
+    @model_validator(mode="after")
+    def _bounded(self) -> PresetSimulation:
+        _check_size(self.periods * self.samples_per_period, self.fs, self.fs_int)
+        return self
+
+
+class StructuralModelSpec(BaseModel):
+    """Linear matrices and nonlinear elements of a structure (Eq. 1-2)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    M: list[list[StrictFloat]] = Field(description="Mass matrix (r x r) [kg].",
+                                 examples=[[[1.0, 0.0], [0.0, 1.0]]])
+    C: list[list[StrictFloat]] = Field(description="Viscous damping matrix (r x r) [N s/m]; may "
+                                 "be non-proportional.", examples=[[[2.0, 0.0], [0.0, 2.0]]])
+    K: list[list[StrictFloat]] = Field(description="Stiffness matrix (r x r) [N/m].",
+                                 examples=[[[2.0e4, -1.0e4], [-1.0e4, 2.0e4]]])
+    dof_names: list[str] = Field(description="Name of each DOF; also the output channel "
+                                 "names.", examples=[["x1", "x2"]])
+    elements: list[NonlinearElementSpec] = Field(
+        default_factory=list, max_length=100,
+        description="Nonlinear elements with their true coefficients.")
+
+    @model_validator(mode="after")
+    def _coefficients_given(self) -> StructuralModelSpec:
+        missing = [k for k, e in enumerate(self.elements) if e.coefficients is None]
+        if missing:
+            raise ValueError(f"elements {missing} need coefficients (the true mu_j) to be "
+                             "simulated")
+        return self
+
+
+class InputSpec(BaseModel):
+    """One excitation force along a direction of the DOFs."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str | None = Field(None, description="Input channel name; default F_<dofs>.",
+                             examples=["F_x1"])
+    direction: dict[str, StrictFloat] = Field(
+        min_length=1, description="DOF name -> weight, normalised to unit length.",
+        examples=[{"x1": 1.0}])
+    rms: StrictFloat = Field(gt=0, description="RMS of the force [N].", examples=[10.0])
+
+
+class ExcitationSpec(BaseModel):
+    """Periodic excitation: a random-phase multisine or periodic noise per input."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    signal: Literal["multisine", "periodic_noise"] = Field(
+        "multisine", description="Flat-spectrum random-phase multisine, or periodic "
+        "Gaussian noise.")
+    band: tuple[StrictFloat, StrictFloat] = Field(description="Excited band [Hz].",
+                                                  examples=[[5.0, 50.0]])
+    samples_per_period: StrictInt = Field(ge=4, le=10_000_000, description="Samples per period "
+                                    "at fs.", examples=[2500])
+    realisations: StrictInt = Field(1, ge=1, le=100, description="Independent realisations.")
+    lines: Literal["full", "odd"] = Field("full", description="multisine: every line in "
+                                          "the band or only odd lines.")
+    detection: StrictInt | None = Field(None, ge=2, description="multisine: leave out one random "
+                                  "line per group of this many (detection lines).")
+    seed: StrictInt = Field(0, ge=0, description="Seed of the signals (input j uses seed + j).")
+    inputs: list[InputSpec] = Field(min_length=1, max_length=100, description="The forces.")
+
+
+class ModelSimulation(BaseModel):
+    """Simulated periodic test of any structure: Newmark integration at ``fs_int``,
+    decimation to ``fs``, band-limited measurement noise."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    model: StructuralModelSpec = Field(description="The structure.")
+    excitation: ExcitationSpec = Field(description="The inputs.")
+    fs: StrictFloat = Field(2500.0, gt=0, description="Measurement sampling rate [Hz].")
+    fs_int: StrictFloat = Field(20000.0, gt=0, description="Integration rate [Hz], an integer "
+                          "multiple of fs.")
+    periods: StrictInt = Field(8, ge=1, le=1000, description="Periods simulated from rest.")
+    outputs: list[str] | None = Field(None, description="DOFs measured; default all.")
+    quantity: Literal["displacement", "velocity", "acceleration"] = Field(
+        "displacement", description="What the outputs measure.")
+    noise_percent: StrictFloat = Field(0.5, ge=0, le=100, description="Noise RMS in % of the "
+                                 "reference output's RMS response.")
+    noise_reference: str | None = Field(None, description="Output setting the noise level; "
+                                        "default the one with the largest response.")
+    noise_band: tuple[StrictFloat, StrictFloat] = Field((0.0, 100.0),
+                                                        description="Noise band [Hz].")
+    discard_periods: StrictInt = Field(2, ge=0, description="Transient periods left out of the "
+                                 "noise reference and exceedance counts.")
+    seed: StrictInt = Field(0, ge=0, description="Seed of the measurement noise.")
+    name: str | None = Field(None, max_length=200, description="Label of the new dataset.")
+
+    @model_validator(mode="after")
+    def _bounded(self) -> ModelSimulation:
+        e = self.excitation
+        _check_size(self.periods * e.samples_per_period * e.realisations, self.fs,
+                    self.fs_int)
+        return self
+
+
+def _simulation_kind(value: Any) -> str:
+    is_model = ("model" in value) if isinstance(value, dict) else isinstance(
+        value, ModelSimulation)
+    return "model" if is_model else "preset"
+
+
+SimulationRequest = Annotated[
+    Annotated[PresetSimulation, Tag("preset")] | Annotated[ModelSimulation, Tag("model")],
+    Discriminator(_simulation_kind),
+]
+"""A SmallSat preset (field ``preset``) or a generic structure (field ``model``)."""

@@ -1,0 +1,73 @@
+"""Batches (idempotent), job listing with filters and cursors, cancel of queued jobs."""
+
+from __future__ import annotations
+
+from service.store import JobState
+
+SIM = {"kind": "simulation", "request": {"preset": "single", "periods": 3,
+                                         "samples_per_period": 2500}}
+
+
+def batch(client, jobs, key=None):
+    headers = {"Idempotency-Key": key} if key else {}
+    return client.post("/v1/batches", json={"jobs": jobs}, headers=headers)
+
+
+def test_retried_batch_with_idempotency_key_returns_the_first_answer(client):
+    first = batch(client, [SIM, SIM], key="run-42")
+    again = batch(client, [SIM, SIM], key="run-42")
+    assert first.status_code == again.status_code == 202
+    assert again.json()["id"] == first.json()["id"]
+    assert again.json()["job_ids"] == first.json()["job_ids"]
+    assert again.headers["Idempotent-Replayed"] == "true"
+    listed = client.get("/v1/jobs?kind=simulation&limit=200").json()["items"]
+    assert len(listed) == 2  # the retry submitted nothing
+
+
+def test_idempotency_key_reused_for_another_body_is_409(client):
+    batch(client, [SIM], key="k1")
+    response = batch(client, [SIM, SIM], key="k1")
+    assert response.status_code == 409
+    assert response.headers["content-type"] == "application/problem+json"
+
+
+def test_batch_with_one_invalid_job_submits_nothing(client):
+    bad = {"kind": "identification", "request": {"dataset_id": "ds_none", "band": [5, 50],
+                                                 "block_rows": 10}}
+    response = batch(client, [SIM, bad])
+    assert response.status_code == 422
+    assert response.json()["detail"].startswith("jobs[1].request.dataset_id")
+    assert client.get("/v1/jobs").json()["items"] == []
+
+
+def test_job_pages_follow_cursors_newest_first(client):
+    ids = batch(client, [SIM] * 5).json()["job_ids"]
+    seen, cursor = [], None
+    while True:
+        page = client.get("/v1/jobs", params={"limit": 2, "kind": "simulation",
+                                              **({"cursor": cursor} if cursor else {})}).json()
+        seen += [job["id"] for job in page["items"]]
+        cursor = page["next_cursor"]
+        if cursor is None:
+            break
+    assert seen == ids[::-1]
+    assert client.get("/v1/jobs?kind=identification").json()["items"] == []
+    assert client.get("/v1/jobs?cursor=garbage").status_code == 422
+    assert client.get("/v1/jobs?state=nonsense").status_code == 422
+
+
+def test_batch_view_counts_states(client):
+    body = batch(client, [SIM, SIM]).json()
+    view = client.get(f"/v1/batches/{body['id']}").json()
+    assert sum(view["counts"].values()) == 2 and len(view["jobs"]) == 2
+
+
+def test_cancel_of_a_queued_job_is_immediate(client):
+    client.app.state.queue.stop()  # nothing may start the job
+    store = client.app.state.store
+    job = store.create_job("public", "simulation", SIM["request"])
+    response = client.delete(f"/v1/jobs/{job.id}")
+    assert response.status_code == 202
+    assert response.json()["state"] == JobState.CANCELLED
+    # cancelling again changes nothing
+    assert client.delete(f"/v1/jobs/{job.id}").json()["state"] == JobState.CANCELLED

@@ -1,0 +1,116 @@
+"""The job runner and the store's claim/lease protocol, with small task functions."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from service.settings import Settings
+from service.store import JobState, Store
+from worker.runner import run_job
+
+
+@pytest.fixture
+def settings(tmp_path) -> Settings:
+    return Settings(data_dir=tmp_path, lease_seconds=1.0, max_attempts=2, job_time_limit=30.0)
+
+
+@pytest.fixture
+def store(settings) -> Store:
+    return Store(settings.data_dir)
+
+
+def counting_task(steps: int, pause: float):
+    """A task that reports progress ``steps`` times and returns how far it got."""
+    def task(context):
+        for k in range(steps):
+            context.progress((k + 1) / steps, f"step {k + 1} of {steps}")
+            time.sleep(pause)
+        return {"steps": steps}
+    return task
+
+
+def test_claim_is_exclusive_while_the_lease_lives(store):
+    job = store.create_job("me", "simulation", {})
+    first = store.claim(job.id, lease_seconds=30, max_attempts=2)
+    second = store.claim(job.id, lease_seconds=30, max_attempts=2)
+    assert first.run and first.attempt == 1
+    assert not second.run and 29 < second.retry_after <= 30
+    store.finish(job.id, JobState.SUCCEEDED, result={})
+    assert store.claim(job.id, lease_seconds=30, max_attempts=2).reason == "already succeeded"
+
+
+def test_expired_lease_is_requeued_then_failed_after_max_attempts(store):
+    job = store.create_job("me", "simulation", {})
+    for attempt in (1, 2):
+        assert store.claim(job.id, lease_seconds=0.01, max_attempts=2).attempt == attempt
+        time.sleep(0.02)
+        requeued = store.reap_lost(max_attempts=2)
+        if attempt == 1:
+            assert requeued == [job.id]
+            assert store.get_job(job.id).state == JobState.QUEUED
+    final = store.get_job(job.id)
+    assert final.state == JobState.FAILED and "2 attempts" in final.error
+
+
+def test_run_records_progress_and_result(store, settings):
+    job = store.create_job("me", "simulation", {})
+    run_job(job.id, settings, {"simulation": counting_task(5, 0.0)})
+    done = store.get_job(job.id)
+    assert done.state == JobState.SUCCEEDED and done.result == {"steps": 5}
+    assert done.progress == 1.0 and done.lease_until is None
+
+
+def test_cancel_stops_a_running_task_within_a_second(store, settings):
+    job = store.create_job("me", "simulation", {})
+    runner = threading.Thread(target=run_job, args=(
+        job.id, settings, {"simulation": counting_task(1000, 0.01)}))
+    runner.start()
+    while store.get_job(job.id).state != JobState.RUNNING:
+        time.sleep(0.01)
+    time.sleep(0.3)
+    asked = time.monotonic()
+    store.request_cancel(job.id)
+    runner.join(timeout=5)
+    assert time.monotonic() - asked < 1.0
+    cancelled = store.get_job(job.id)
+    assert cancelled.state == JobState.CANCELLED and 0 < cancelled.progress < 1
+
+
+def test_time_limit_fails_the_job_with_a_reason(store, tmp_path):
+    settings = Settings(data_dir=tmp_path, job_time_limit=0.2, lease_seconds=1.0)
+    job = store.create_job("me", "simulation", {})
+    run_job(job.id, settings, {"simulation": counting_task(100, 0.01)})
+    failed = store.get_job(job.id)
+    assert failed.state == JobState.FAILED and "FNSI_JOB_TIME_LIMIT" in failed.error
+
+
+def test_library_value_error_becomes_the_job_error(store, settings):
+    def bad(context):
+        raise ValueError("block_rows too small; raise it above 12")
+    job = store.create_job("me", "identification", {})
+    run_job(job.id, settings, {"identification": bad})
+    assert store.get_job(job.id).error == "block_rows too small; raise it above 12"
+
+
+def test_heartbeat_keeps_a_silent_task_alive(store, settings):
+    def silent(context):
+        time.sleep(2.5 * settings.lease_seconds)  # no progress reports at all
+        return {}
+    job = store.create_job("me", "simulation", {})
+    runner = threading.Thread(target=run_job, args=(job.id, settings, {"simulation": silent}))
+    runner.start()
+    time.sleep(2 * settings.lease_seconds)
+    assert store.reap_lost(max_attempts=2) == []
+    runner.join()
+    assert store.get_job(job.id).state == JobState.SUCCEEDED
+
+
+def test_queued_jobs_whose_message_may_be_lost_are_found(store):
+    job = store.create_job("me", "simulation", {})
+    assert store.stale_queued(older_than=60) == [job.id]  # never handed over
+    store.mark_enqueued(job.id)
+    assert store.stale_queued(older_than=60) == []
+    assert store.stale_queued(older_than=0) == [job.id]

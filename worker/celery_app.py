@@ -1,0 +1,51 @@
+"""Celery application of fnsi-worker, configured so that no accepted job is lost.
+
+* ``task_acks_late`` + ``task_reject_on_worker_lost``: a message is acknowledged only
+  after its task ends, and requeued if the pool process running it dies;
+* ``worker_prefetch_multiplier = 1``: a worker reserves only the tasks it can start,
+  so an idle worker is never starved by a busy one;
+* time limits below the Redis visibility timeout, so a task still running is never
+  redelivered to a second worker;
+* no result backend: job state lives in the job store (a Celery PENDING state would only
+  mean "unknown"); the task is idempotent through the store's atomic claim.
+"""
+
+from __future__ import annotations
+
+from celery import Celery
+from celery.exceptions import SoftTimeLimitExceeded
+
+from service.settings import Settings, get_settings
+from worker.tasks import execute
+
+TASK_NAME = "fnsi.run_job"
+
+
+def make_celery(settings: Settings) -> Celery:
+    """Celery app for ``settings`` (broker, queue, limits) with the job task registered."""
+    app = Celery("fnsi", broker=settings.broker_url or "memory://", set_as_current=False)
+    app.conf.update(
+        task_acks_late=True,
+        task_reject_on_worker_lost=True,
+        worker_prefetch_multiplier=1,
+        task_soft_time_limit=settings.job_time_limit,
+        task_time_limit=settings.job_time_limit + 30,
+        broker_transport_options={"visibility_timeout": settings.visibility_timeout},
+        broker_connection_retry_on_startup=True,
+        task_default_queue=settings.queue_name,
+        task_ignore_result=True,
+        task_serializer="json",
+        accept_content=["json"],
+        worker_hijack_root_logger=False,
+    )
+
+    @app.task(name=TASK_NAME, bind=True, max_retries=None)
+    def run_job(self, job_id: str) -> None:
+        claim = execute(job_id, settings, (SoftTimeLimitExceeded,))
+        if claim.retry_after is not None:  # another worker's lease is alive: look again later
+            raise self.retry(countdown=claim.retry_after + 1.0)
+
+    return app
+
+
+app = make_celery(get_settings())
