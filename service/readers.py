@@ -41,7 +41,7 @@ import pyuff
 import scipy.io
 
 from fnsi.measurement import Measurement
-from service.dataset_summary import detect_periods
+from fnsi.summary import detect_periods
 
 FORMATS = ("npz", "csv", "mat", "h5", "uff")
 _EXTENSIONS = {".npz": "npz", ".csv": "csv", ".txt": "csv", ".mat": "mat", ".h5": "h5",

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from fnsi.measurement import Measurement
-from service.dataset_summary import summarize
+from fnsi.summary import summarize
 
 ARTEFACT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
 

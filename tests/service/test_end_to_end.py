@@ -10,9 +10,9 @@ import time
 import numpy as np
 import pytest
 
+from fnsi.statespace import StateSpaceModel
 from tests.service.servers import wait_for_job, wait_for_progress
 from tests.service.test_simulations import REQUEST as MODEL_SIMULATION
-from worker.identifications import load_model_npz
 
 PNG = b"\x89PNG\r\n\x1a\n"
 TRUE_CUBIC = 1.0e8            # N/m^3, MODEL_SIMULATION's element
@@ -78,7 +78,7 @@ def test_every_artefact_downloads(stack, identified):
             if artefact["name"].endswith(".png"):
                 assert response.content.startswith(PNG)
         full = client.get(f"/v1/jobs/{identified['id']}/artefacts/result.json").json()
-        model = load_model_npz(io.BytesIO(
+        model = StateSpaceModel.from_npz(io.BytesIO(
             client.get(f"/v1/jobs/{identified['id']}/artefacts/model.npz").content))
         np.testing.assert_array_equal(model.A, np.array(full["model"]["A"]))
         assert model.elements[0].to_json()["exponent"] == 3.0

@@ -1,6 +1,6 @@
-"""What an uploaded or simulated dataset contains: channels, periods, RMS and SNR.
+"""What a measurement contains: channels, periods, RMS and SNR per channel.
 
-The summary is computed once, when a dataset enters the store, and returned with it.
+The service computes it once, when a dataset enters its store; `fnsi info` prints it.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def snr_db(x: np.ndarray, periods: int) -> np.ndarray | None:
         (p - 1) * blocks.shape[0] * blocks.shape[2]
     )
     signal = np.mean(mean**2, axis=(0, 1)) - noise / p
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # silent and constant channels
         ratio = 10.0 * np.log10(np.maximum(signal, 0.0) / noise)
     return ratio
 

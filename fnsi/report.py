@@ -1,0 +1,190 @@
+"""The artefacts of an identification: result document, model file and figures.
+
+One function builds what the service's identification jobs store and what
+``fnsi identify`` writes to a folder, so both give the same files:
+
+``result.json``
+    :meth:`IdentificationResult.to_json` plus the model's errors on the estimation (and
+    validation) data, NaN written as null (strict JSON).
+``model.npz``
+    :meth:`StateSpaceModel.to_npz`.
+``frf.png``, ``stabilisation.png``, ``coefficients.png``, ``stiffness.png``, ``macx.png``
+    Each when there is something to draw (no coefficients for a linear model, no FRF
+    with fewer realisations than inputs). When the data were simulated, the truth
+    (``Truth.to_json()``) is overlaid.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fnsi import plots
+from fnsi.identification import IdentificationResult, IdentificationSettings
+from fnsi.measurement import Measurement
+from fnsi.nonlinear import NonlinearElement
+from fnsi.spectra import output_spectra
+from fnsi.stabilisation import macx_matrix
+from fnsi.validation import compare
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass(frozen=True)
+class Report:
+    """What an identification leaves behind.
+
+    Attributes
+    ----------
+    document : dict
+        The content of ``result.json`` (strict JSON values).
+    artefacts : dict of str to bytes
+        File name to content, ``result.json`` and ``model.npz`` included.
+    """
+
+    document: dict[str, Any]
+    artefacts: dict[str, bytes]
+
+
+def strict_json(value: Any) -> Any:
+    """``value`` with NaN and infinities as null (strict JSON, as HTTP clients expect)."""
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [strict_json(v) for v in value]
+    return value
+
+
+def measured_frf(measurement: Measurement, settings: IdentificationSettings
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Nonparametric FRF on the excited lines, least squares over realisations.
+
+    Returns
+    -------
+    (frequencies, H) or None
+        frequencies (lines,) [Hz] and H (lines, l, m) = S_yu S_uu^-1 per line, output
+        over force; None with fewer realisations than inputs.
+    """
+    data = measurement.select(settings.inputs, settings.outputs)
+    if data.n_realisations < data.n_inputs:
+        return None
+    spectra = output_spectra(data, settings.band, discard_periods=settings.discard_periods,
+                             line_set="excited")
+    U, Y = spectra.inputs, spectra.outputs                       # (R, N, m), (R, N, l)
+    s_uu = np.einsum("rki,rkj->kij", U, U.conj())
+    s_yu = np.einsum("rkl,rkj->klj", Y, U.conj())
+    H = np.linalg.solve(s_uu.transpose(0, 2, 1), s_yu.transpose(0, 2, 1)).transpose(0, 2, 1)
+    return spectra.frequencies, H
+
+
+def identification_report(result: IdentificationResult, settings: IdentificationSettings,
+                          estimation: Measurement, *, validation: Measurement | None = None,
+                          truth: dict[str, Any] | None = None,
+                          progress: Progress | None = None) -> Report:
+    """Errors, figures and files of an identification.
+
+    Parameters
+    ----------
+    result : IdentificationResult
+        What :func:`fnsi.identification.identify` returned for ``settings``.
+    settings : IdentificationSettings
+    estimation : Measurement
+        The data the model was identified on.
+    validation : Measurement, optional
+        Separate data (another realisation or amplitude) to validate the model on.
+    truth : dict, optional
+        ``Truth.to_json()`` of simulated data: true modes and elements are overlaid.
+    progress : callable(fraction, message), optional
+        Called between stages; may raise to cancel.
+
+    Returns
+    -------
+    Report
+    """
+    report = progress or (lambda fraction, message: None)
+    document = result.to_json()
+    report(0.0, "simulating the model on the estimation data")
+    document["errors"] = {"estimation": _errors(result, settings, estimation)}
+    if validation is not None:
+        report(0.3, "simulating the model on the validation data")
+        document["errors"]["validation"] = _errors(result, settings, validation)
+    document = strict_json(document)
+    report(0.6, "drawing figures")
+    artefacts = _figures(result, settings, estimation, truth)
+    artefacts["result.json"] = json.dumps(document).encode()
+    buffer = io.BytesIO()
+    result.model.to_npz(buffer)
+    artefacts["model.npz"] = buffer.getvalue()
+    report(1.0, "report written")
+    return Report(document, artefacts)
+
+
+def _errors(result: IdentificationResult, settings: IdentificationSettings,
+            measurement: Measurement) -> dict[str, Any]:
+    try:
+        return compare(result.model, measurement, discard_periods=settings.discard_periods,
+                       band_high=settings.band[1]).errors.to_json()
+    except ValueError as err:  # e.g. an unstable model cannot be simulated
+        return {"failure": str(err)}
+
+
+def _true_element(truth: dict[str, Any] | None, element: NonlinearElement
+                  ) -> NonlinearElement | None:
+    for spec in (truth or {}).get("elements", []):
+        true = NonlinearElement.from_json(spec)
+        if (true.kind, true.dof, true.ref) == (element.kind, element.dof, element.ref):
+            return true
+    return None
+
+
+def _figures(result: IdentificationResult, settings: IdentificationSettings,
+             measurement: Measurement, truth: dict[str, Any] | None) -> dict[str, bytes]:
+    model = result.model
+    out: dict[str, bytes] = {}
+    frf = measured_frf(measurement, settings)
+    if frf is not None:
+        frequencies, H = frf
+        fitted = model.frequency_response(frequencies)[:, :, :model.n_inputs]
+        out["frf.png"] = plots.plot_frf(frequencies, H, fitted, output_names=model.output_names,
+                                        input_names=model.input_names)
+    if result.stabilisation is not None:
+        background = None if frf is None else (frf[0], np.abs(frf[1]).sum(axis=(1, 2)))
+        out["stabilisation.png"] = plots.plot_stabilisation(
+            result.stabilisation, frf=background, singular_values=result.singular_values,
+            order=result.order)
+    known = [c for c in result.coefficients if c.identifiable]
+    if known:
+        trues = [_true_element(truth, model.elements[c.element]) for c in known]
+        out["coefficients.png"] = plots.plot_coefficients(
+            known[0].frequencies, np.column_stack([c.values for c in known]),
+            [c.name for c in known],
+            truth=[None if t is None or t.coefficients is None else t.coefficients[c.basis]
+                   for t, c in zip(trues, known, strict=True)])
+    if result.stiffness:
+        out["stiffness.png"] = plots.plot_stiffness(
+            result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness])
+    out["macx.png"] = _macx_figure(result, truth)
+    return out
+
+
+def _macx_figure(result: IdentificationResult, truth: dict[str, Any] | None) -> bytes:
+    """Identified modes against the true ones when the data were simulated, else against
+    themselves (how distinct the identified shapes are)."""
+    modal = result.modal
+    reference, label, frequencies = modal.shapes, "identified", modal.frequencies
+    if truth is not None:
+        names = truth["modal"]["output_names"]
+        columns = [names.index(n) for n in modal.output_names]
+        shapes = np.array(truth["modal"]["shapes_real"]) + 1j * np.array(
+            truth["modal"]["shapes_imag"])
+        reference, label = shapes[:, columns], "true"
+        frequencies = np.array(truth["modal"]["frequencies"])
+    return plots.plot_macx(macx_matrix(modal.shapes, reference), modal.frequencies,
+                           frequencies, label_a="identified", label_b=label)
