@@ -19,8 +19,14 @@ def main(argv: list[str] | None = None) -> None:
     import uvicorn
 
     from service.app import create_app
+    from service.settings import get_settings
 
-    uvicorn.run(create_app(), host=args.host, port=args.port, log_level=args.log_level)
+    app = create_app()
+    shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
+    print(f"fnsi-service: interactive API docs at http://{shown}:{args.port}/docs "
+          f"(jobs run {'on Celery workers' if get_settings().broker_url else 'embedded'})",
+          flush=True)
+    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level)
 
 
 if __name__ == "__main__":
