@@ -1,0 +1,854 @@
+"""Diagnosis of a model revision: which physical effect is missing, and where.
+
+A revision of a :class:`fnsi.study.Study` (an FNSI model of given order and nonlinear
+elements) fails on validation data where an effect it lacks acts. The diagnosis ranks
+candidate missing effects in three stages, from cheap to expensive:
+
+1. **Screen locations** (every output to ground and every declared connection) with the
+   revision's poles held fixed (:class:`fnsi.screening.ScreeningProblem`, the B^e step of
+   FNSI): first every location with a cheap set of functions of its relative motion
+   (linear spring, x^2, x^3, friction-like and quadratic-damping velocity functions), then
+   the best with a nonparametric cubic spline (automatic knots, Eq. 19-22) plus the
+   velocity functions acting through one force (rank-one B^e), which also gives the
+   shape of the force. The reduction of the noise-weighted residual ranks the locations;
+   one set of line-wise products serves them all.
+2. **Compare kinds** at the best locations with the same fixed-pole fit, each with a
+   linear spring at its location (the starting model absorbed part of the effect as
+   linear stiffness): clearance (gaps searched; symmetric, asymmetric or one-sided),
+   cubic stiffness (hardening or softening), quadratic stiffness (asymmetry), Coulomb
+   friction (smoothing width searched) and quadratic damping.
+3. **Validate** the best few by what the user cares about: FNSI identification of the
+   revision with the candidate added, simulation with the validation input and the
+   validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
+   frequency, Section II.E). A missing linear mode (order + 2) is always validated.
+
+Candidates are ranked by validation NRMSE. A candidate *beats the noise floor* when the
+squared NRMSE it removes exceeds the squared noise floor, i.e. when the improvement is
+larger than anything a perfect model could still gain from noise; when none does, the
+diagnosis says so (no false alarm on a linear structure).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from enum import StrEnum
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from fnsi.nonlinear import NonlinearElement
+from fnsi.screening import ScreeningProblem
+
+if TYPE_CHECKING:
+    from fnsi.study import Evaluation, Study
+
+Progress = Callable[[float, str], None]
+
+AXIS_NAME = re.compile(r"^(?P<node>.+)_(?P<axis>[A-Za-z]+)$")
+ALL_PAIRS_LIMIT = 12
+"""Outputs up to which every pair of channels is a default connection."""
+
+
+class Effect(StrEnum):
+    """Kind of missing effect a candidate proposes (closed set, used in JSON)."""
+
+    CLEARANCE = "clearance"
+    CUBIC_STIFFNESS = "cubic_stiffness"
+    QUADRATIC_STIFFNESS = "quadratic_stiffness"
+    COULOMB_FRICTION = "coulomb_friction"
+    QUADRATIC_DAMPING = "quadratic_damping"
+    MISSING_MODE = "missing_mode"
+
+
+@dataclass(frozen=True)
+class Location:
+    """Where a lumped element could act: between ``dof`` and ``ref`` (None: ground)."""
+
+    dof: str
+    ref: str | None = None
+
+    @property
+    def label(self) -> str:
+        """Short label, ``"NC2w_Z-NC2b_Z"`` or ``"NC2w_Z-ground"``."""
+        return f"{self.dof}-{self.ref or 'ground'}"
+
+    @property
+    def phrase(self) -> str:
+        """Words for an explanation: ``"between NC2w_Z and NC2b_Z"``."""
+        return f"between {self.dof} and {self.ref or 'ground'}"
+
+    def to_json(self) -> dict:
+        """``{"dof": ..., "ref": ...}``."""
+        return {"dof": self.dof, "ref": self.ref}
+
+
+def candidate_locations(output_names: Sequence[str],
+                        connections: Sequence[tuple[str, str]] | None = None
+                        ) -> tuple[Location, ...]:
+    """Every output to ground plus the declared connections (or default pairs).
+
+    Parameters
+    ----------
+    output_names : sequence of str
+        Output channels of the model.
+    connections : sequence of (str, str), optional
+        Pairs of channels a physical element could join. Default (None or empty): the
+        pairs of channels on the same axis when every name reads ``<node>_<axis>``
+        (``NC2w_Z``, ``NC2b_Z``), otherwise all pairs when there are at most 12 outputs.
+
+    Returns
+    -------
+    tuple of Location
+
+    Examples
+    --------
+    >>> [loc.label for loc in candidate_locations(["A_Z", "B_Z", "B_X"])]
+    ['A_Z-ground', 'B_Z-ground', 'B_X-ground', 'A_Z-B_Z']
+    """
+    names = list(output_names)
+    grounds = [Location(name) for name in names]
+    if connections:
+        pairs = []
+        for pair in connections:
+            if len(pair) != 2 or pair[0] == pair[1]:
+                raise ValueError(f"a connection joins two different channels; got {pair}")
+            unknown = [name for name in pair if name not in names]
+            if unknown:
+                raise ValueError(f"connection {tuple(pair)} names unknown outputs {unknown}; "
+                                 f"outputs are {names}")
+            pairs.append(Location(str(pair[0]), str(pair[1])))
+        return tuple(grounds + pairs)
+    matches = [AXIS_NAME.match(name) for name in names]
+    if all(matches):
+        pairs = [Location(a, b) for i, a in enumerate(names) for b in names[i + 1:]
+                 if matches[i]["axis"] == matches[names.index(b)]["axis"]]
+    elif len(names) <= ALL_PAIRS_LIMIT:
+        pairs = [Location(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    else:
+        pairs = []
+    return tuple(grounds + pairs)
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """Effort of each stage of the diagnosis.
+
+    Attributes
+    ----------
+    screening_intervals : int
+        Spline intervals (automatic uniform knots) of the location screening.
+    top_locations : int
+        Locations whose kinds are compared (stage 2).
+    validated_candidates : int
+        Element candidates identified and simulated on validation data (stage 3), best
+        stage-2 scores first; the missing-mode candidate comes on top.
+    curve_locations : int
+        Top locations whose nonparametric stiffness curve is identified for display.
+    curve_intervals : int
+        Spline intervals of those curves.
+    include_missing_mode : bool
+        Validate the revision with two more states (one more linear mode).
+    """
+
+    screening_intervals: int = 8
+    top_locations: int = 3
+    validated_candidates: int = 4
+    curve_locations: int = 1
+    curve_intervals: int = 12
+    include_missing_mode: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("screening_intervals", "curve_intervals"):
+            if getattr(self, name) < 2:
+                raise ValueError(f"{name} must be at least 2 spline intervals")
+        for name in ("top_locations", "validated_candidates"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1")
+        if self.curve_locations < 0:
+            raise ValueError("curve_locations must be 0 or more")
+
+
+@dataclass(frozen=True)
+class LocationScore:
+    """Stage-1 result at one location.
+
+    Attributes
+    ----------
+    location : Location
+    reduction : float
+        Fraction of the fixed-pole residual the location's functions explain [-].
+    refined : bool
+        True when scored with the spline (else with the cheap polynomial proxy).
+    displacement_range : (float, float)
+        Measured range of the relative displacement [length unit].
+    curve_x, curve_shape : ndarray, shape (points,)
+        Spline restoring-force shape (arbitrary scale and sign) over that range; empty
+        for locations not refined.
+    """
+
+    location: Location
+    reduction: float
+    refined: bool
+    displacement_range: tuple[float, float]
+    curve_x: np.ndarray
+    curve_shape: np.ndarray
+
+    def to_json(self) -> dict:
+        """JSON-ready summary (without the curve)."""
+        return {**self.location.to_json(), "reduction": self.reduction,
+                "refined": self.refined,
+                "displacement_range": list(self.displacement_range)}
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """Stage-2 result: one kind at one location with its fixed-pole score.
+
+    Attributes
+    ----------
+    effect : Effect
+    location : Location
+    element : NonlinearElement
+        The element to add (without coefficients: FNSI identifies them).
+    reduction : float
+        Fraction of the fixed-pole residual explained [-].
+    detail : dict
+        Numbers for the explanation (e.g. the spline's flat zone).
+    """
+
+    effect: Effect
+    location: Location
+    element: NonlinearElement
+    reduction: float
+    detail: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A validated candidate missing effect.
+
+    Attributes
+    ----------
+    effect : Effect
+    location : Location or None
+        None for a missing mode.
+    element : NonlinearElement or None
+        Element with its identified coefficients; None for a missing mode.
+    order : int
+        Model order of the validated revision.
+    validation_nrmse_percent : float
+        Overall validation NRMSE with the candidate added [%] (inf if the model failed).
+    error_reduction_factor : float
+        NRMSE before / NRMSE after [-].
+    beats_noise_floor : bool
+        The squared NRMSE removed exceeds the squared noise floor.
+    screening_reduction : float or None
+        Stage-2 fixed-pole residual reduction [-] (None for a missing mode).
+    log10_real_imag : float or None
+        Band mean of log10(|Re mu| / |Im mu|) of the candidate's coefficients.
+    flatness_percent : float or None
+        Spread of Re mu over frequency relative to its band mean [%].
+    explanation : str
+        One or two sentences a test engineer reads.
+    failure : str or None
+        Why the validated model failed (e.g. unstable simulation), else None.
+    """
+
+    effect: Effect
+    location: Location | None
+    element: NonlinearElement | None
+    order: int
+    validation_nrmse_percent: float
+    error_reduction_factor: float
+    beats_noise_floor: bool
+    screening_reduction: float | None
+    log10_real_imag: float | None
+    flatness_percent: float | None
+    explanation: str
+    failure: str | None = None
+
+    def to_json(self) -> dict:
+        """The HTTP contract's candidate object."""
+        return {
+            "effect": self.effect.value,
+            "element": None if self.element is None else self.element.to_json(),
+            "order": self.order,
+            "location": None if self.location is None else self.location.to_json(),
+            "validation_nrmse_percent": _finite(self.validation_nrmse_percent),
+            "error_reduction_factor": _finite(self.error_reduction_factor),
+            "beats_noise_floor": self.beats_noise_floor,
+            "screening_reduction": _finite(self.screening_reduction),
+            "log10_real_imag": _finite(self.log10_real_imag),
+            "flatness_percent": _finite(self.flatness_percent),
+            "explanation": self.explanation,
+            "failure": self.failure,
+        }
+
+
+def _finite(value: float | None) -> float | None:
+    """JSON number, or null for None, NaN and infinities."""
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Ranked candidate missing effects of one revision.
+
+    Attributes
+    ----------
+    revision : int
+        Index of the diagnosed revision in its study.
+    nrmse_before_percent, noise_floor_percent : float
+        Validation NRMSE of the revision and the noise floor [%].
+    candidates : tuple of Candidate
+        Validated candidates, best (lowest validation NRMSE) first.
+    locations : tuple of LocationScore
+        Stage-1 screening, best first.
+    proposals : tuple of Proposal
+        Stage-2 kinds at the top locations, best first.
+    curves : tuple of StiffnessCurve
+        Identified nonparametric (spline) stiffness curves at the top locations.
+    summary : str
+        The verdict in words.
+    timings : dict of str to float
+        Wall time of each stage [s].
+    notes : tuple of str
+        What could not be done and why (e.g. a curve the data cannot support).
+    """
+
+    revision: int
+    nrmse_before_percent: float
+    noise_floor_percent: float
+    candidates: tuple[Candidate, ...]
+    locations: tuple[LocationScore, ...]
+    proposals: tuple[Proposal, ...]
+    curves: tuple
+    summary: str
+    timings: dict[str, float]
+    notes: tuple[str, ...] = ()
+
+    @property
+    def found(self) -> bool:
+        """True when the best candidate beats the noise floor."""
+        return bool(self.candidates) and self.candidates[0].beats_noise_floor
+
+    def to_json(self) -> dict:
+        """JSON-ready result (``candidates`` best first, the HTTP contract)."""
+        return {
+            "revision": self.revision,
+            "nrmse_before_percent": _finite(self.nrmse_before_percent),
+            "noise_floor_percent": _finite(self.noise_floor_percent),
+            "found": self.found,
+            "summary": self.summary,
+            "candidates": [c.to_json() for c in self.candidates],
+            "screening": [s.to_json() for s in self.locations[:20]],
+            "proposals": [{"effect": p.effect.value, **p.location.to_json(),
+                           "element": p.element.to_json(), "reduction": p.reduction}
+                          for p in self.proposals],
+            "stiffness_curves": [c.to_json() for c in self.curves],
+            "timings": dict(self.timings),
+            "notes": list(self.notes),
+        }
+
+
+# -- stage 1: locations --------------------------------------------------------------------
+def _screening_basis(problem: ScreeningProblem, location: Location,
+                     intervals: int) -> tuple[NonlinearElement, np.ndarray]:
+    """Spline element (knots from the measured range) and the spectra of a linear spring,
+    the spline and friction-like and quadratic-damping velocity functions at
+    ``location`` (one force: fitted with a rank-one B^e)."""
+    x, v = problem.motion.relative(location.dof, location.ref)
+    spline = NonlinearElement("spline", location.dof, location.ref,
+                              intervals=intervals).resolve(x)
+    columns = [problem.basis_spectra(e) for e in (spline, *_velocity_elements(location, v))]
+    return spline, np.concatenate([problem.linear_spectrum(location.dof, location.ref),
+                                   *columns], axis=2)
+
+
+def _velocity_elements(location: Location, v: np.ndarray) -> list[NonlinearElement]:
+    """Friction-like and quadratic-damping functions of the relative velocity ``v``."""
+    return [NonlinearElement("coulomb_friction", location.dof, location.ref,
+                             width=_default_width(v)),
+            NonlinearElement("quadratic_damping", location.dof, location.ref)]
+
+
+def _proxy_cost(problem: ScreeningProblem, location: Location) -> float:
+    """Cheap first score: linear spring, x^2, x^3 and the velocity functions, each with
+    its own B^e column (5 functions instead of the spline's 12)."""
+    _, v = problem.motion.relative(location.dof, location.ref)
+    dof, ref = location.dof, location.ref
+    elements = [NonlinearElement("polynomial", dof, ref, exponent=2.0, signed=False),
+                NonlinearElement("polynomial", dof, ref, exponent=3.0),
+                *_velocity_elements(location, v)]
+    columns = [problem.linear_spectrum(dof, ref), *map(problem.basis_spectra, elements)]
+    return problem.fit(np.concatenate(columns, axis=2))[0]
+
+
+def _fit_with_linear(problem: ScreeningProblem, element: NonlinearElement) -> float:
+    """Fixed-pole cost of an element plus a linear spring at its location.
+
+    Every candidate carries the linear spring, so that none is credited for merely
+    correcting the linear stiffness the starting model absorbed there (its best linear
+    approximation): only the nonlinear part competes.
+    """
+    columns = [problem.linear_spectrum(element.dof, element.ref),
+               problem.basis_spectra(element)]
+    return problem.fit(np.concatenate(columns, axis=2))[0]
+
+
+def _default_width(v: np.ndarray) -> float:
+    """Coulomb smoothing width: 3 % of the RMS relative velocity."""
+    return 0.03 * max(float(np.sqrt(np.mean(v**2))), np.finfo(float).tiny)
+
+
+def screen_locations(problem: ScreeningProblem, locations: Sequence[Location],
+                     intervals: int, refine: int = 12, progress: Progress | None = None
+                     ) -> tuple[LocationScore, ...]:
+    """Stage 1: score every location, best first.
+
+    All locations get a cheap score (:func:`_proxy_cost`); the best ``refine`` are then
+    scored with the nonparametric spline and the velocity functions acting through one
+    force (rank-one B^e, :meth:`ScreeningProblem.fit_rank_one`), which also gives the
+    spline shape of the force. Refined locations come first.
+    """
+    proxies = []
+    for count, location in enumerate(locations):
+        if progress is not None and count % 16 == 0:
+            progress(0.7 * count / max(len(locations), 1), f"screening {location.label}")
+        proxies.append((_proxy_cost(problem, location), location))
+    proxies.sort(key=lambda item: item[0])
+    refined, rest = [], []
+    for rank, (cost, location) in enumerate(proxies):
+        x, _ = problem.motion.relative(location.dof, location.ref)
+        span = (float(x.min()), float(x.max()))
+        if rank >= refine:
+            rest.append(LocationScore(location, problem.reduction(cost), False, span,
+                                      np.zeros(0), np.zeros(0)))
+            continue
+        if progress is not None:
+            progress(0.7 + 0.3 * rank / refine, f"spline at {location.label}")
+        spline, columns = _screening_basis(problem, location, intervals)
+        cost, mu = problem.fit_rank_one(columns)
+        grid = np.linspace(*span, 201)
+        shape = spline.basis(grid) @ mu[1: 1 + spline.n_basis]
+        # Sign: a restoring force on average (positive work over the range).
+        if np.sum(shape * grid) < 0:
+            shape = -shape
+        refined.append(LocationScore(location, problem.reduction(cost), True, span, grid,
+                                     shape))
+    refined.sort(key=lambda s: -s.reduction)
+    return tuple(refined + rest)
+
+
+# -- stage 2: kinds --------------------------------------------------------------------------
+def _flat_zone(x: np.ndarray, force: np.ndarray) -> tuple[float, float]:
+    """Where a restoring-force curve leaves zero slope on each side: (g-, g+) [length].
+
+    The knee is where the slope magnitude first reaches half of its value at the end of
+    the measured range on that side (inf when that side never stiffens).
+    """
+    slope = np.abs(np.gradient(force, x))
+    gaps = []
+    for side in (x < 0, x > 0):
+        xs, ss = x[side], slope[side]
+        if xs.size < 4:
+            gaps.append(math.inf)
+            continue
+        order = np.argsort(np.abs(xs))
+        xs, ss = np.abs(xs[order]), ss[order]
+        outer = np.mean(ss[-max(xs.size // 10, 2):])
+        steep = np.flatnonzero(ss >= 0.5 * outer)
+        gaps.append(float(xs[steep[0]]) if steep.size and outer > 0 else math.inf)
+    return gaps[0], gaps[1]
+
+
+def _clearance_cost(problem: ScreeningProblem, location: Location, gn: float,
+                    gp: float) -> float:
+    """Fixed-pole cost of a clearance with gaps (gn, gp) (inf: no stop on that side)."""
+    if math.isinf(gn) and math.isinf(gp):
+        return problem.fit(problem.linear_spectrum(location.dof, location.ref))[0]
+    return _fit_with_linear(problem, _clearance(location, gn, gp))
+
+
+def _clearance(location: Location, gn: float, gp: float) -> NonlinearElement:
+    """Clearance element: symmetric, asymmetric or one-sided from the two gaps."""
+    if math.isinf(gn):
+        return NonlinearElement("clearance", location.dof, location.ref, gap_positive=gp,
+                                side="positive")
+    if math.isinf(gp):
+        return NonlinearElement("clearance", location.dof, location.ref, gap_negative=gn,
+                                side="negative")
+    if math.isclose(gn, gp, rel_tol=1e-12):
+        return NonlinearElement("clearance", location.dof, location.ref, gap=gn)
+    return NonlinearElement("clearance", location.dof, location.ref, gap_negative=gn,
+                            gap_positive=gp)
+
+
+def _search_gap(cost: Callable[[float], float], high: float) -> tuple[float, float]:
+    """Minimise ``cost(gap)`` over (0, high): a grid, then a bounded scalar search."""
+    grid = np.linspace(0.04, 0.96, 24) * high
+    values = [cost(g) for g in grid]
+    best = int(np.argmin(values))
+    low_b, high_b = grid[max(best - 1, 0)], grid[min(best + 1, grid.size - 1)]
+    result = minimize_scalar(cost, bounds=(low_b, high_b), method="bounded",
+                             options={"xatol": 1e-3 * high})
+    if result.fun < values[best]:
+        return float(result.x), float(result.fun)
+    return float(grid[best]), float(values[best])
+
+
+def _clearance_proposal(problem: ScreeningProblem, score: LocationScore) -> Proposal:
+    """Best clearance at a location: symmetric, then each side refined on its own."""
+    location = score.location
+    low, high = score.displacement_range
+    reach = min(-low, high)
+    gap, sym_cost = _search_gap(lambda g: _clearance_cost(problem, location, g, g), reach)
+    # Each side separately (the other held); a side whose best gap is beyond the motion
+    # has no stop: a one-sided clearance.
+    gp, _ = _search_gap(lambda g: _clearance_cost(problem, location, gap, g), high)
+    gn, _ = _search_gap(lambda g: _clearance_cost(problem, location, g, gp), -low)
+    # Both gaps together from there (the cost valley is diagonal when the sides interact).
+    start = np.array([gn, gp])
+    smallest = 0.01 * max(high, -low)
+    polished = minimize(lambda g: _clearance_cost(problem, location, *np.clip(g, smallest, None)),
+                        start, method="Nelder-Mead",
+                        options={"initial_simplex": [start, start * (1.05, 1.0),
+                                                     start * (1.0, 1.05)],
+                                 "xatol": 1e-4 * (high - low), "fatol": 0.0,
+                                 "maxiter": 80})
+    gn, gp = (float(g) for g in np.clip(polished.x, smallest, None))
+    asym_cost = float(polished.fun)
+    one_sided = {
+        "positive": _clearance_cost(problem, location, math.inf, gp),
+        "negative": _clearance_cost(problem, location, gn, math.inf),
+    }
+    options = [(sym_cost, gap, gap), (asym_cost, gn, gp),
+               (one_sided["positive"], math.inf, gp), (one_sided["negative"], gn, math.inf)]
+    explained = problem.base_cost - sym_cost
+    # Prefer the simpler symmetric form unless the other explains clearly more (2 %).
+    best = min(options, key=lambda o: o[0])
+    if best[0] > sym_cost - 0.02 * explained:
+        best = options[0]
+    cost, gn_best, gp_best = best
+    return Proposal(Effect.CLEARANCE, location, _clearance(location, gn_best, gp_best),
+                    problem.reduction(cost),
+                    {"spline_flat": _flat_zone(score.curve_x, score.curve_shape)})
+
+
+def _single_proposal(problem: ScreeningProblem, effect: Effect, location: Location,
+                     element: NonlinearElement) -> Proposal:
+    """Score one parametric element."""
+    return Proposal(effect, location, element,
+                    problem.reduction(_fit_with_linear(problem, element)))
+
+
+def _friction_proposal(problem: ScreeningProblem, location: Location) -> Proposal:
+    """Coulomb friction with the smoothing width that fits best (searched in log width)."""
+    _, v = problem.motion.relative(location.dof, location.ref)
+    rms = _default_width(v) / 0.03
+
+    def element(log_width: float) -> NonlinearElement:
+        return NonlinearElement("coulomb_friction", location.dof, location.ref,
+                                width=rms * 10.0**log_width)
+
+    def cost(log_width: float) -> float:
+        return _fit_with_linear(problem, element(log_width))
+
+    grid = np.linspace(-3.0, 0.0, 7)
+    values = [cost(w) for w in grid]
+    best = int(np.argmin(values))
+    result = minimize_scalar(cost, bounds=(grid[max(best - 1, 0)],
+                                           grid[min(best + 1, grid.size - 1)]),
+                             method="bounded", options={"xatol": 0.02})
+    log_width, value = ((result.x, result.fun) if result.fun < values[best]
+                        else (grid[best], values[best]))
+    return Proposal(Effect.COULOMB_FRICTION, location, element(float(log_width)),
+                    problem.reduction(value))
+
+
+def compare_kinds(problem: ScreeningProblem, score: LocationScore) -> list[Proposal]:
+    """Stage 2 at one location: every kind with its parameters, best first."""
+    location = score.location
+    dof, ref = location.dof, location.ref
+    proposals = [
+        _clearance_proposal(problem, score),
+        _single_proposal(problem, Effect.CUBIC_STIFFNESS, location,
+                         NonlinearElement("polynomial", dof, ref, exponent=3.0)),
+        _single_proposal(problem, Effect.QUADRATIC_STIFFNESS, location,
+                         NonlinearElement("polynomial", dof, ref, exponent=2.0,
+                                          signed=False)),
+        _friction_proposal(problem, location),
+        _single_proposal(problem, Effect.QUADRATIC_DAMPING, location,
+                         NonlinearElement("quadratic_damping", dof, ref)),
+    ]
+    return sorted(proposals, key=lambda p: -p.reduction)
+
+
+# -- stage 3: validation and explanation -------------------------------------------------------
+def beats_noise_floor(before: float, after: float, floor: float) -> bool:
+    """True when a candidate's improvement is real: the squared NRMSE it removes exceeds
+    the squared noise floor, and the NRMSE falls by at least 10 %.
+
+    Without a noise floor (one period), a fall of the NRMSE by 20 % is required.
+    """
+    if not math.isfinite(after) or after >= 0.9 * before:
+        return False
+    if not math.isfinite(floor):
+        return after < 0.8 * before
+    return before**2 - after**2 > floor**2
+
+
+def _coefficient_quality(evaluation: Evaluation, element: NonlinearElement
+                         ) -> tuple[NonlinearElement, float | None, float | None]:
+    """The element with its identified coefficients and their quality criteria."""
+    quality = evaluation.coefficient_quality(element)
+    if quality is None:
+        return element, None, None
+    mean, log_ratio, flatness = quality
+    return replace(element, coefficients=tuple(mean)), log_ratio, flatness
+
+
+def _number(value: float) -> str:
+    """Three significant digits, the way a test report prints them."""
+    return f"{value:.3g}"
+
+
+def _kind_words(proposal: Proposal, element: NonlinearElement) -> str:
+    """Physical description of an element with its identified numbers."""
+    where = proposal.location.phrase
+    mu = element.coefficients[0] if element.coefficients else None
+    size = "" if mu is None else f" ({_number(abs(mu))} per unit of the basis)"
+    if proposal.effect is Effect.CLEARANCE:
+        gn, gp = element.gaps
+        added = "" if mu is None else f", adding stiffness {_number(mu)} beyond contact"
+        if math.isinf(gn) or math.isinf(gp):
+            side, gap = ("positive", gp) if math.isinf(gn) else ("negative", gn)
+            sign = "+" if side == "positive" else "-"
+            return (f"a one-sided stop {where} at {sign}{_number(gap)} (no contact on the "
+                    f"other side within the measured motion){added}")
+        if math.isclose(gn, gp):
+            return f"a clearance of about ±{_number(gp)} {where}{added}"
+        return (f"an asymmetric clearance {where}, contact at -{_number(gn)} and "
+                f"+{_number(gp)}{added}")
+    if proposal.effect is Effect.CUBIC_STIFFNESS:
+        trend = "" if mu is None else ("hardening " if mu > 0 else "softening ")
+        return f"a {trend}cubic spring {where}" + ("" if mu is None else
+                                                   f" (force {_number(mu)} x^3)")
+    if proposal.effect is Effect.QUADRATIC_STIFFNESS:
+        stiffer = "" if mu is None else (
+            ", stiffer for positive displacement" if mu > 0 else
+            ", stiffer for negative displacement")
+        return f"an asymmetric (quadratic) stiffness {where}{size}{stiffer}"
+    if proposal.effect is Effect.COULOMB_FRICTION:
+        force = "" if mu is None else f" with a sliding force of about {_number(abs(mu))}"
+        return f"dry (Coulomb) friction {where}{force}"
+    return f"quadratic damping {where}" + ("" if mu is None else
+                                           f" (force {_number(mu)} v|v|)")
+
+
+def _shape_words(proposal: Proposal, score: LocationScore | None) -> str:
+    """What the nonparametric spline curve shows at the location."""
+    if score is None:
+        return ""
+    if proposal.effect is Effect.CLEARANCE:
+        gn, gp = proposal.detail.get("spline_flat", (math.inf, math.inf))
+        if math.isfinite(gn) and math.isfinite(gp):
+            if math.isclose(gn, gp, rel_tol=0.15):
+                zone = f"±{_number(0.5 * (gn + gp))}"
+            else:
+                zone = f"-{_number(gn)} .. +{_number(gp)}"
+            return f"; the spline shape is flat inside {zone} and steep outside"
+        return ""
+    if proposal.effect in (Effect.COULOMB_FRICTION, Effect.QUADRATIC_DAMPING):
+        return "; the force follows the relative velocity, not the displacement"
+    return f"; the spline curve explains {100 * score.reduction:.0f} % of the residual there"
+
+
+def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore | None,
+             before: float, after: float, floor: float, beats: bool) -> str:
+    """Sentence for one element candidate."""
+    if not math.isfinite(after):
+        return (f"{_kind_words(proposal, element)}: the model with it could not be "
+                f"simulated on the validation input")
+    effect = (f"adding it lowers the validation error from {before:.3g} % to {after:.3g} %"
+              if after < before < math.inf else
+              f"with it the model runs, with a validation error of {after:.3g} % (the "
+              f"revision itself could not be simulated)" if after < before else
+              f"adding it does not lower the validation error ({before:.3g} % -> {after:.3g} %)")
+    floor_words = f" (noise floor {floor:.3g} %)" if math.isfinite(floor) else ""
+    verdict = "" if beats else "; that is not beyond the noise floor"
+    return (f"{_kind_words(proposal, element)}: {effect}{floor_words}"
+            f"{_shape_words(proposal, score)}{verdict}")
+
+
+def _explain_mode(evaluation: Evaluation, previous: Sequence[float], order: int,
+                  before: float, after: float, floor: float, beats: bool) -> str:
+    """Sentence for the missing-mode candidate."""
+    new = evaluation.new_mode_words(previous)
+    if not math.isfinite(after):
+        return (f"a linear mode the model lacks (order {order}): that model could not be "
+                f"simulated on the validation input")
+    change = ("lowers" if after < before else "does not lower")
+    floor_words = f" (noise floor {floor:.3g} %)" if math.isfinite(floor) else ""
+    verdict = "" if beats else "; that is not beyond the noise floor"
+    start = f"{before:.3g} %" if math.isfinite(before) else "a model that could not run"
+    return (f"a linear mode the model lacks{new}: raising the order to {order} {change} the "
+            f"validation error from {start} to {after:.3g} %{floor_words}{verdict}")
+
+
+def _summary(candidates: Sequence[Candidate], before: float, floor: float) -> str:
+    """Verdict in words."""
+    floor_words = (f"the noise floor of {floor:.3g} %" if math.isfinite(floor)
+                   else "the noise level")
+    if candidates and candidates[0].beats_noise_floor:
+        return f"Most likely missing: {candidates[0].explanation}."
+    return (f"No candidate improves the validation error ({before:.3g} %) beyond "
+            f"{floor_words}: no missing effect is detected at the locations screened.")
+
+
+def _unidentified(effect: Effect, location: Location | None,
+                  element: NonlinearElement | None, order: int, reduction: float | None,
+                  error: ValueError) -> Candidate:
+    """A candidate FNSI could not identify, with the reason."""
+    what = "one more linear mode" if location is None else f"{effect.value} {location.phrase}"
+    return Candidate(
+        effect=effect, location=location, element=element, order=order,
+        validation_nrmse_percent=math.inf, error_reduction_factor=0.0,
+        beats_noise_floor=False, screening_reduction=reduction, log10_real_imag=None,
+        flatness_percent=None, explanation=f"{what} could not be identified: {error}",
+        failure=str(error))
+
+
+def _validate(study: Study, revision: int, proposal: Proposal, before: float,
+              floor: float, score: LocationScore | None) -> Candidate:
+    """Stage 3 for one element proposal."""
+    base = study.revisions[revision]
+    try:
+        evaluation = study.evaluate((*base.elements, proposal.element), base.identified_order)
+    except ValueError as error:   # e.g. too many basis functions for the data
+        return _unidentified(proposal.effect, proposal.location, proposal.element,
+                             base.identified_order, proposal.reduction, error)
+    after = evaluation.nrmse_percent
+    element, log_ratio, flatness = _coefficient_quality(evaluation, proposal.element)
+    beats = beats_noise_floor(before, after, floor)
+    return Candidate(
+        effect=proposal.effect, location=proposal.location, element=element,
+        order=evaluation.order, validation_nrmse_percent=after,
+        error_reduction_factor=before / after if after > 0 else math.inf,
+        beats_noise_floor=beats, screening_reduction=proposal.reduction,
+        log10_real_imag=log_ratio, flatness_percent=flatness,
+        explanation=_explain(proposal, element, score, before, after, floor, beats),
+        failure=evaluation.failure,
+    )
+
+
+def _validate_mode(study: Study, revision: int, before: float, floor: float) -> Candidate:
+    """Stage 3 for one more linear mode (two more states)."""
+    base = study.revisions[revision]
+    order = base.identified_order + 2
+    try:
+        evaluation = study.evaluate(base.elements, order)
+    except ValueError as error:   # e.g. the order exceeds what the data allow
+        return _unidentified(Effect.MISSING_MODE, None, None, order, None, error)
+    after = evaluation.nrmse_percent
+    beats = beats_noise_floor(before, after, floor)
+    return Candidate(
+        effect=Effect.MISSING_MODE, location=None, element=None, order=order,
+        validation_nrmse_percent=after,
+        error_reduction_factor=before / after if after > 0 else math.inf,
+        beats_noise_floor=beats, screening_reduction=None, log10_real_imag=None,
+        flatness_percent=None,
+        explanation=_explain_mode(evaluation, base.modal["frequency_hz"], order, before,
+                                  after, floor, beats),
+        failure=evaluation.failure,
+    )
+
+
+def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | None = None,
+             progress: Progress | None = None) -> Diagnosis:
+    """Rank the candidate missing effects of a study revision.
+
+    Parameters
+    ----------
+    study : Study
+        The study; its estimation data, validation data and declared connections are used.
+    revision : int
+        Index of the revision to diagnose (default: the latest).
+    settings : DiagnosisSettings, optional
+        Effort of each stage.
+    progress : callable, optional
+        ``progress(fraction, message)``; may raise to cancel.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    settings = settings or DiagnosisSettings()
+    report = progress or (lambda fraction, message: None)
+    index = revision % len(study.revisions)
+    base = study.revisions[index]
+    # A revision that could not be simulated (e.g. unstable) is still diagnosed: its
+    # error counts as infinite and the noise floor comes from the first candidate run.
+    before = base.nrmse_percent
+    floor = study.noise_floor_percent
+    timings: dict[str, float] = {}
+
+    start = time.perf_counter()
+    report(0.0, "preparing the screening")
+    problem = ScreeningProblem(study.estimation, base.model, study.settings.band,
+                               study.settings.discard_periods)
+    locations = candidate_locations(base.model.output_names, study.connections)
+    scores = screen_locations(problem, locations, settings.screening_intervals,
+                              progress=lambda f, m: report(0.3 * f, m))
+    timings["screening_s"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    report(0.3, "comparing kinds at the best locations")
+    proposals = sorted((p for s in scores[: settings.top_locations]
+                        for p in compare_kinds(problem, s)), key=lambda p: -p.reduction)
+    timings["kinds_s"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    chosen = proposals[: settings.validated_candidates]
+    steps = len(chosen) + int(settings.include_missing_mode) + settings.curve_locations
+    curves, notes = [], []
+    for count, score in enumerate(scores[: settings.curve_locations]):
+        report(0.4 + 0.6 * count / steps, f"stiffness curve {score.location.phrase}")
+        spline = NonlinearElement("spline", score.location.dof, score.location.ref,
+                                  intervals=settings.curve_intervals)
+        try:
+            curve = study.stiffness_curve(index, spline)
+        except ValueError as error:   # e.g. too many spline ordinates for the data
+            notes.append(f"no stiffness curve {score.location.phrase}: {error}")
+            continue
+        if curve is not None:
+            curves.append(curve)
+    # The identified (physically scaled, finer) spline curve describes the shape better
+    # than the screening one where it exists.
+    flat = {Location(c.element.dof, c.element.ref): _flat_zone(c.x, c.force) for c in curves}
+    chosen = [replace(p, detail={**p.detail, "spline_flat": flat[p.location]})
+              if p.effect is Effect.CLEARANCE and p.location in flat else p for p in chosen]
+    timings["curves_s"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    by_location = {s.location: s for s in scores}
+    candidates = []
+    for count, proposal in enumerate(chosen):
+        report(0.4 + 0.6 * (settings.curve_locations + count) / steps,
+               f"validating {proposal.effect} {proposal.location.phrase}")
+        candidates.append(_validate(study, index, proposal, before, floor,
+                                    by_location.get(proposal.location)))
+    if settings.include_missing_mode:
+        report(0.4 + 0.6 * (steps - 1) / steps, "validating one more linear mode")
+        candidates.append(_validate_mode(study, index, before, floor))
+    candidates.sort(key=lambda c: (c.validation_nrmse_percent, -(c.screening_reduction or 0)))
+    timings["validation_s"] = time.perf_counter() - start
+    report(1.0, "diagnosis done")
+    return Diagnosis(index, before, floor, tuple(candidates), scores, tuple(proposals),
+                     tuple(curves), _summary(candidates, before, floor), timings,
+                     tuple(notes))

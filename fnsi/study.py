@@ -1,0 +1,630 @@
+"""A modelling study: revisions of an FNSI model judged on validation data (DESIGN.md 3.7).
+
+A study holds an estimation dataset, a validation dataset (another realisation or
+amplitude of the excitation), optional declared connections (pairs of channels a physical
+element could join) and a sequence of model revisions. Revision 0 is the user's starting
+model, often linear (an order and no nonlinear elements). Every revision is identified
+with FNSI on the estimation data (:func:`fnsi.identification.identify`), simulated to
+periodic steady state with the validation input (:func:`fnsi.simulation.simulate_periodic`)
+and compared with the validation outputs (:func:`fnsi.errors.model_errors`): per-channel
+and overall NRMSE in % and dB, the noise floor, and the error on every DFT line.
+
+The error history shows revision by revision whether the model improves; the diagnosis
+(:mod:`fnsi.diagnosis`) proposes what to add next.
+
+A study is saved to a folder as JSON plus NPZ (never pickle):
+``study.json`` (settings, connections, revisions, errors), ``estimation.npz`` and
+``validation.npz`` (canonical datasets) and ``revisions.npz`` (model matrices,
+simulated validation outputs and error spectra).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fnsi.errors import ModelErrors, model_errors
+from fnsi.identification import IdentificationResult, IdentificationSettings, identify
+from fnsi.measurement import Measurement
+from fnsi.nonlinear import NonlinearElement
+from fnsi.simulation import simulate_periodic
+from fnsi.spectra import integrate_periodic, kept_record
+from fnsi.statespace import StateSpaceModel
+from fnsi.stiffness import StiffnessCurve
+
+if TYPE_CHECKING:
+    from fnsi.diagnosis import Diagnosis, DiagnosisSettings
+
+Progress = Callable[[float, str], None]
+FORMAT = "fnsi-study/1"
+_INTEGRATIONS = {"displacement": 0, "velocity": 1, "acceleration": 2}
+ERROR_BAND_FACTOR = 3.0
+"""Error spectra reach this multiple of the band's upper edge (harmonics of a
+nonlinearity land there), capped at Nyquist."""
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def pooled_percent(values: np.ndarray, power: np.ndarray) -> float:
+    """Overall value of per-channel percentages, each channel weighted by its power.
+
+    sqrt(sum_p (v_p rms_p)^2 / sum_p rms_p^2): the error energy of all channels over their
+    signal energy (all outputs share one quantity and unit). Unlike the plain RMS over
+    channels, channels that barely respond (noise only, e.g. lateral sensors under an
+    axial force) do not hide what happens where the structure moves.
+
+    Parameters
+    ----------
+    values : ndarray, shape (l,)
+        Per-channel NRMSE or noise floor [%].
+    power : ndarray, shape (l,)
+        Mean square of each measured channel.
+    """
+    return float(np.sqrt(np.sum(np.asarray(values) ** 2 * power) / np.sum(power)))
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """A model (order and elements) identified on estimation and run on validation data.
+
+    Attributes
+    ----------
+    elements : tuple of NonlinearElement
+        Elements as requested (no coefficients).
+    identification : IdentificationResult
+        FNSI result on the estimation data.
+    simulated : ndarray, shape (R, period_length, l) or None
+        One steady-state period of the simulated validation outputs per realisation, in
+        the measured quantity; None when the simulation failed.
+    errors : ModelErrors or None
+        Validation errors against the noise floor; None when the simulation failed.
+    excited : ndarray of bool, shape (lines,) or None
+        Which lines of ``errors`` the validation input excites.
+    nrmse_percent : float
+        Overall validation NRMSE [%] (:func:`pooled_percent`; inf when the model could
+        not be simulated).
+    failure : str or None
+        Why the model could not be simulated (e.g. unstable), else None.
+    """
+
+    elements: tuple[NonlinearElement, ...]
+    identification: IdentificationResult
+    simulated: np.ndarray | None
+    errors: ModelErrors | None
+    excited: np.ndarray | None
+    nrmse_percent: float = math.inf
+    failure: str | None = None
+
+    @property
+    def order(self) -> int:
+        """Identified model order."""
+        return int(self.identification.order)
+
+    @property
+    def model(self) -> StateSpaceModel:
+        """Identified state-space model."""
+        return self.identification.model
+
+    def coefficient_quality(self, element: NonlinearElement
+                            ) -> tuple[np.ndarray, float, float] | None:
+        """Band-mean real coefficients, log10(Re/Im) and flatness [%] of one element.
+
+        Returns None when the identification reports no coefficient for it.
+        """
+        elements = self.model.elements
+        indices = [k for k, e in enumerate(elements) if e.kind == element.kind
+                   and e.dof == element.dof and e.ref == element.ref]
+        if not indices:
+            return None
+        own = [c for c in self.identification.coefficients if c.element == indices[-1]]
+        if not own or not all(c.identifiable for c in own):
+            return None
+        return (np.array([c.mean_real for c in own]),
+                float(np.mean([c.log10_real_imag for c in own])),
+                float(100 * np.mean([c.variation for c in own])))
+
+    def new_mode_words(self, previous: Sequence[float]) -> str:
+        """The modes this model has that none of ``previous`` [Hz] matches within 3 %,
+        in words for explanations (e.g. ``" near 24.6 Hz"``)."""
+        frequencies = self.identification.modal.frequencies
+        old = np.asarray(previous, dtype=float)
+        new = [f for f in frequencies
+               if old.size == 0 or np.min(np.abs(old - f)) > 0.03 * f]
+        if not new:
+            return ""
+        return " near " + " and ".join(f"{f:.3g} Hz" for f in new)
+
+
+@dataclass(frozen=True)
+class Revision:
+    """One model of a study with its validation errors.
+
+    Attributes
+    ----------
+    number : int
+        Position in the study (0: the starting model).
+    note : str
+        What changed, in the user's words or the library's.
+    order : int or "auto"
+        Requested model order.
+    elements : tuple of NonlinearElement
+        Requested nonlinear elements (no coefficients).
+    identified_order : int
+        Order of the identified model.
+    model : StateSpaceModel
+        Identified model (its elements carry resolved spline knots).
+    coefficients : tuple of dict
+        Identified coefficients per element, JSON-ready.
+    modal : dict
+        Natural frequencies [Hz] and damping ratios [-] of the underlying linear system.
+    errors : ModelErrors or None
+        Validation errors (None if the model could not be simulated).
+    excited : ndarray of bool or None
+        Lines of ``errors`` the validation input excites.
+    simulated : ndarray, shape (R, period_length, l) or None
+        Simulated validation outputs (one steady-state period per realisation).
+    nrmse_percent, noise_floor_percent : float
+        Overall validation NRMSE and noise floor [%] (:func:`pooled_percent`; NRMSE inf
+        if the model could not be simulated).
+    failure : str or None
+        Why the model could not be simulated.
+    """
+
+    number: int
+    note: str
+    order: int | str
+    elements: tuple[NonlinearElement, ...]
+    identified_order: int
+    model: StateSpaceModel
+    coefficients: tuple[dict, ...]
+    modal: dict
+    errors: ModelErrors | None
+    excited: np.ndarray | None
+    simulated: np.ndarray | None
+    nrmse_percent: float
+    noise_floor_percent: float
+    failure: str | None = None
+
+    def to_json(self, *, spectra: bool = False) -> dict:
+        """JSON-ready revision: model summary and validation errors (with the error per
+        channel and DFT line, in dB, when ``spectra``)."""
+        errors = None
+        if self.errors is not None:
+            errors = self.errors.to_json(spectra=spectra)
+            if spectra:
+                errors["spectra"]["excited"] = self.excited.tolist()
+            for channel, e_db, n_db in zip(errors["channels"], self.errors.nrmse_db,
+                                           self.errors.noise_floor_db, strict=True):
+                channel["relative_to_noise_floor_db"] = _finite(float(e_db - n_db))
+            overall = errors["overall_nrmse_db"]
+            floor = errors["overall_noise_floor_db"]
+            errors["overall_relative_to_noise_floor_db"] = (
+                None if overall is None or floor is None else overall - floor)
+        return {
+            "number": self.number,
+            "note": self.note,
+            "order": self.order,
+            "identified_order": self.identified_order,
+            "elements": [e.to_json() for e in self.elements],
+            "model_elements": [e.to_json() for e in self.model.elements],
+            "coefficients": list(self.coefficients),
+            "modal": self.modal,
+            "nrmse_percent": _finite(self.nrmse_percent),
+            "noise_floor_percent": _finite(self.noise_floor_percent),
+            "validation": errors,
+            "failure": self.failure,
+        }
+
+
+def _coefficients_json(result: IdentificationResult) -> tuple[dict, ...]:
+    """Identified coefficients with their quality criteria, per element."""
+    return tuple(c.to_json() for c in result.coefficients)
+
+
+def _modal_json(result: IdentificationResult) -> dict:
+    modal = result.modal
+    return {"frequency_hz": modal.frequencies.tolist(),
+            "damping_ratio": modal.damping_ratios.tolist()}
+
+
+def _check_pair(estimation: Measurement, validation: Measurement) -> None:
+    """Estimation and validation data must describe the same test set-up."""
+    for name in ("input_names", "output_names", "fs", "quantity"):
+        a, b = getattr(estimation, name), getattr(validation, name)
+        if a != b:
+            raise ValueError(f"estimation and validation data differ in {name} ({a!r} vs "
+                             f"{b!r}); use two records of the same test set-up")
+
+
+class Study:
+    """Estimation and validation data, declared connections and model revisions.
+
+    Parameters
+    ----------
+    estimation, validation : Measurement
+        Records of the same set-up (channels, sampling rate, quantity); the validation
+        record needs two or more periods after ``discard_periods`` for a noise floor.
+    settings : IdentificationSettings
+        Identification settings shared by all revisions (channels, band, block rows,
+        line set, weighting); each revision sets its own order and elements.
+    connections : sequence of (str, str), optional
+        Pairs of output channels a physical element could join (the diagnosis screens
+        them and every channel to ground).
+    name : str
+        Free label.
+
+    Examples
+    --------
+    ::
+
+        study = Study.create(estimation, validation, IdentificationSettings(order=8, ...))
+        diagnosis = study.diagnose()
+        study.add_revision(add=[diagnosis.candidates[0].element], note="clearance")
+        study.save("my-study")
+    """
+
+    def __init__(self, estimation: Measurement, validation: Measurement,
+                 settings: IdentificationSettings,
+                 connections: Sequence[tuple[str, str]] = (), name: str = "") -> None:
+        _check_pair(estimation, validation)
+        if validation.periods - settings.discard_periods < 1:
+            raise ValueError(f"the validation record has {validation.periods} periods and "
+                             f"{settings.discard_periods} are discarded; record more periods")
+        self.estimation = estimation
+        self.validation = validation
+        self.settings = replace(settings, elements=())
+        self.connections = tuple((str(a), str(b)) for a, b in connections)
+        outputs = self.output_names
+        for pair in self.connections:
+            unknown = [n for n in pair if n not in outputs]
+            if unknown or pair[0] == pair[1]:
+                raise ValueError(f"connection {pair} must join two different outputs of the "
+                                 f"study; unknown {unknown}, outputs are {list(outputs)}")
+        self.name = name
+        self.revisions: list[Revision] = []
+
+    @functools.cached_property
+    def _validation_kept(self) -> tuple[np.ndarray, int]:
+        """Steady-state validation outputs of the study's channels and their periods."""
+        validation = self.validation.select(outputs=self.output_names)
+        kept = validation.periods - self.settings.discard_periods
+        return kept_record(validation.y, validation.periods,
+                           self.settings.discard_periods), kept
+
+    @functools.cached_property
+    def channel_power(self) -> np.ndarray:
+        """Mean square of each period-averaged validation output, shape (l,): the weights
+        of :func:`pooled_percent` (the normalisation of each channel's NRMSE)."""
+        measured, kept = self._validation_kept
+        r, samples, channels = measured.shape
+        mean = measured.reshape(r, kept, samples // kept, channels).mean(axis=1)
+        return np.mean(mean**2, axis=(0, 1))
+
+    @functools.cached_property
+    def _channel_floor(self) -> np.ndarray:
+        """Noise floor of each validation channel [%] (NaN with one kept period)."""
+        measured, kept = self._validation_kept
+        zero = np.zeros_like(measured[:, : measured.shape[1] // kept])
+        return model_errors(measured, zero, self.validation.fs, periods=kept).noise_floor_percent
+
+    @property
+    def noise_floor_percent(self) -> float:
+        """Overall noise floor of the validation data [%]: the NRMSE a perfect model
+        would reach (:func:`pooled_percent`; a property of the data, not of a model)."""
+        return pooled_percent(self._channel_floor, self.channel_power)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Outputs the revisions model."""
+        return self.settings.outputs or self.estimation.output_names
+
+    @classmethod
+    def create(cls, estimation: Measurement, validation: Measurement,
+               settings: IdentificationSettings, *,
+               connections: Sequence[tuple[str, str]] = (), name: str = "",
+               note: str = "starting model", progress: Progress | None = None) -> Study:
+        """A study with revision 0 identified and validated.
+
+        ``settings.order`` and ``settings.elements`` are the starting model.
+        """
+        study = cls(estimation, validation, settings, connections, name)
+        study._append(tuple(settings.elements), settings.order, note, progress)
+        return study
+
+    # -- revisions -------------------------------------------------------------------------
+    def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
+                 progress: Progress | None = None) -> Evaluation:
+        """Identify a model on the estimation data and run it on the validation data.
+
+        The study is not changed. A model that cannot be simulated (unstable, diverging)
+        is returned with ``failure`` set instead of raising.
+        """
+        elements = tuple(elements)
+        settings = replace(self.settings, elements=elements, order=order)
+        report = progress or (lambda fraction, message: None)
+        result = identify(self.estimation, settings,
+                          lambda f, m: report(0.9 * f, m))
+        report(0.9, "simulating the validation input")
+        validation = self.validation.select(inputs=result.model.input_names,
+                                            outputs=result.model.output_names)
+        kept = validation.periods - settings.discard_periods
+        measured = kept_record(validation.y, validation.periods, settings.discard_periods)
+        u = validation.u[:, -validation.period_length:]
+        try:
+            periods = [simulate_periodic(result.model, u[r]).y
+                       for r in range(validation.n_realisations)]
+        except ValueError as error:
+            return Evaluation(elements, result, None, None, None, failure=str(error))
+        # FNSI models predict displacement; compare in the measured quantity (exact
+        # periodic differentiation).
+        simulated = integrate_periodic(np.stack(periods), validation.fs,
+                                       -_INTEGRATIONS[validation.quantity])
+        high = min(validation.fs / 2, ERROR_BAND_FACTOR * settings.band[1])
+        errors = model_errors(measured, simulated, validation.fs, periods=kept,
+                              output_names=validation.output_names, band=(0.0, high))
+        report(1.0, "validated")
+        return Evaluation(elements, result, simulated, errors,
+                          self._excited_lines(validation, errors.frequencies),
+                          pooled_percent(errors.nrmse_percent, self.channel_power))
+
+    def _excited_lines(self, validation: Measurement, frequencies: np.ndarray) -> np.ndarray:
+        """Lines where the validation input has power (the others show distortion)."""
+        u = validation.u[:, -validation.period_length:]
+        spectrum = np.abs(np.fft.rfft(u, axis=1)) ** 2                     # (R, lines, m)
+        power = spectrum.sum(axis=(0, 2))
+        lines = np.rint(frequencies * validation.period_length / validation.fs).astype(int)
+        return power[lines] > 1e-6 * power.max()
+
+    def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
+                progress: Progress | None) -> Revision:
+        evaluation = self.evaluate(elements, order, progress)
+        result = evaluation.identification
+        revision = Revision(
+            number=len(self.revisions), note=note, order=order, elements=elements,
+            identified_order=evaluation.order, model=result.model,
+            coefficients=_coefficients_json(result), modal=_modal_json(result),
+            errors=evaluation.errors, excited=evaluation.excited,
+            simulated=evaluation.simulated, nrmse_percent=evaluation.nrmse_percent,
+            noise_floor_percent=self.noise_floor_percent, failure=evaluation.failure,
+        )
+        self.revisions.append(revision)
+        return revision
+
+    def add_revision(self, *, add: Sequence[NonlinearElement | dict] = (),
+                     remove: Sequence[NonlinearElement | dict | int] = (),
+                     order: int | str | None = None, note: str | None = None,
+                     base: int = -1, progress: Progress | None = None) -> Revision:
+        """Identify and validate a new revision derived from revision ``base``.
+
+        Parameters
+        ----------
+        add : sequence of NonlinearElement or JSON dict
+            Elements to add (coefficients are ignored: FNSI identifies them).
+        remove : sequence of NonlinearElement, JSON dict or int
+            Elements to remove, given as elements of the base revision or their index.
+        order : int or "auto", optional
+            New model order; default: the base revision's identified order.
+        note : str, optional
+            What changed (default: generated from ``add``, ``remove`` and ``order``).
+        base : int
+            Revision to start from (default: the latest).
+        progress : callable, optional
+            ``progress(fraction, message)``; may raise to cancel.
+
+        Returns
+        -------
+        Revision
+            The new revision (also appended to :attr:`revisions`).
+        """
+        if not self.revisions:
+            raise ValueError("the study has no revision yet; create it with Study.create")
+        parent = self.revisions[base]
+        elements = list(parent.elements)
+        removed = [self._find(elements, item) for item in remove]
+        elements = [e for k, e in enumerate(elements) if k not in removed]
+        added = [_requested(item) for item in add]
+        for element in added:
+            if element in elements:
+                raise ValueError(f"{element.name} is already in revision {parent.number}; "
+                                 f"remove it first to change its parameters")
+            for name in (element.dof, element.ref):
+                if name is not None and name not in self.output_names:
+                    raise ValueError(f"{element.name} refers to {name!r}, which is not an "
+                                     f"output of the study {list(self.output_names)}")
+        elements.extend(added)
+        new_order = parent.identified_order if order is None else order
+        if note is None:
+            words = [f"add {e.name}" for e in added]
+            words += [f"remove {parent.elements[k].name}" for k in removed]
+            if new_order != parent.identified_order:
+                words.append(f"order {new_order}")
+            note = ", ".join(words) or "re-identified"
+        return self._append(tuple(elements), new_order, note, progress)
+
+    @staticmethod
+    def _find(elements: list[NonlinearElement], item: NonlinearElement | dict | int) -> int:
+        """Index of an element of a revision, by index, element or JSON."""
+        if isinstance(item, int):
+            if not 0 <= item < len(elements):
+                raise ValueError(f"no element {item} to remove; the revision has "
+                                 f"{len(elements)} elements")
+            return item
+        wanted = _requested(item)
+        for k, element in enumerate(elements):
+            if element == wanted:
+                return k
+        raise ValueError(f"{wanted.name} is not in the revision; its elements are "
+                         f"{[e.name for e in elements]}")
+
+    # -- diagnosis and curves --------------------------------------------------------------
+    def diagnose(self, revision: int = -1, settings: DiagnosisSettings | None = None,
+                 progress: Progress | None = None) -> Diagnosis:
+        """Rank candidate missing effects of a revision (see :func:`fnsi.diagnosis.diagnose`)."""
+        from fnsi.diagnosis import diagnose
+
+        return diagnose(self, revision, settings, progress)
+
+    def stiffness_curve(self, revision: int, element: NonlinearElement
+                        ) -> StiffnessCurve | None:
+        """Identified restoring-force curve of ``element`` added to a revision.
+
+        Used for nonparametric (spline) curves at suspected locations; None when the
+        identification reports no curve for it.
+        """
+        parent = self.revisions[revision]
+        settings = replace(self.settings, elements=(*parent.elements, element),
+                           order=parent.identified_order)
+        result = identify(self.estimation, settings)
+        curves = [c for c in result.stiffness if c.element.dof == element.dof
+                  and c.element.ref == element.ref and c.element.kind == element.kind]
+        return curves[-1] if curves else None
+
+    # -- history ---------------------------------------------------------------------------
+    def history(self) -> list[dict]:
+        """Error history, one row per revision: number, note, order, elements, NRMSE."""
+        rows = []
+        for r in self.revisions:
+            rows.append({
+                "number": r.number, "note": r.note, "order": r.identified_order,
+                "elements": [e.name for e in r.elements],
+                "nrmse_percent": _finite(r.nrmse_percent),
+                "nrmse_db": _finite(20 * math.log10(r.nrmse_percent / 100))
+                if math.isfinite(r.nrmse_percent) and r.nrmse_percent > 0 else None,
+                "noise_floor_percent": _finite(r.noise_floor_percent),
+                "failure": r.failure,
+            })
+        return rows
+
+    def history_table(self) -> str:
+        """The error history as a plain-text table (for the CLI)."""
+        lines = [f"{'rev':>3}  {'order':>5}  {'NRMSE %':>9}  {'floor %':>8}  change"]
+        for row in self.history():
+            e = row["nrmse_percent"]
+            f = row["noise_floor_percent"]
+            lines.append(f"{row['number']:>3}  {row['order']:>5}  "
+                         f"{'failed' if e is None else f'{e:9.3g}':>9}  "
+                         f"{'-' if f is None else f'{f:8.3g}':>8}  {row['note']}")
+        return "\n".join(lines)
+
+    def to_json(self, *, spectra: bool = False) -> dict:
+        """JSON-ready study: settings, connections, revisions and the error history
+        (per-line error spectra of every revision when ``spectra``)."""
+        return {
+            "format": FORMAT,
+            "name": self.name,
+            "settings": _settings_json(self.settings),
+            "connections": [list(pair) for pair in self.connections],
+            "estimation": _measurement_json(self.estimation),
+            "validation": _measurement_json(self.validation),
+            "revisions": [r.to_json(spectra=spectra) for r in self.revisions],
+            "history": self.history(),
+        }
+
+    # -- persistence -----------------------------------------------------------------------
+    def save(self, folder: str | Path) -> Path:
+        """Write the study to ``folder`` (created if needed) as JSON and NPZ files."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        self.estimation.to_npz(folder / "estimation.npz")
+        self.validation.to_npz(folder / "validation.npz")
+        arrays: dict[str, np.ndarray] = {}
+        for r in self.revisions:
+            key = f"r{r.number}_"
+            for name in ("A", "B", "C", "D"):
+                arrays[key + name] = getattr(r.model, name)
+            if r.errors is not None:
+                arrays[key + "simulated"] = r.simulated
+                arrays[key + "excited"] = r.excited
+                for name in _ERROR_ARRAYS:
+                    arrays[key + name] = getattr(r.errors, name)
+        np.savez(folder / "revisions.npz", **arrays)
+        (folder / "study.json").write_text(json.dumps(self.to_json(), indent=1))
+        return folder
+
+    @classmethod
+    def load(cls, folder: str | Path) -> Study:
+        """Read a study written by :meth:`save` (no pickle anywhere)."""
+        folder = Path(folder)
+        path = folder / "study.json"
+        if not path.is_file():
+            raise ValueError(f"{folder} holds no study.json; give the folder a study was "
+                             f"saved to")
+        meta = json.loads(path.read_text())
+        if meta.get("format") != FORMAT:
+            raise ValueError(f"{path} is not a {FORMAT} file (format {meta.get('format')!r})")
+        study = cls(Measurement.from_npz(folder / "estimation.npz"),
+                    Measurement.from_npz(folder / "validation.npz"),
+                    _settings_from_json(meta["settings"]),
+                    [tuple(p) for p in meta["connections"]], meta.get("name", ""))
+        with np.load(folder / "revisions.npz", allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        for item in meta["revisions"]:
+            study.revisions.append(_revision_from_json(item, arrays, study))
+        return study
+
+
+_ERROR_ARRAYS = ("nrmse_percent", "noise_floor_percent", "frequencies", "measured_spectrum",
+                 "error_spectrum", "noise_spectrum")
+
+
+def _requested(item: NonlinearElement | dict) -> NonlinearElement:
+    """An element as a revision stores it: parameters only, no coefficients."""
+    element = item if isinstance(item, NonlinearElement) else NonlinearElement.from_json(item)
+    return replace(element, coefficients=None)
+
+
+def _measurement_json(m: Measurement) -> dict:
+    return {"inputs": list(m.input_names), "outputs": list(m.output_names), "fs": m.fs,
+            "periods": m.periods, "samples": m.n_samples, "realisations": m.n_realisations,
+            "quantity": m.quantity}
+
+
+def _settings_json(settings: IdentificationSettings) -> dict:
+    """Identification settings as JSON (elements are per revision)."""
+    out = settings.to_json()
+    del out["elements"]
+    return out
+
+
+def _settings_from_json(data: dict) -> IdentificationSettings:
+    known = {f.name for f in dataclasses.fields(IdentificationSettings)}
+    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in known}
+    return IdentificationSettings(**kwargs)
+
+
+def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study) -> Revision:
+    """Rebuild a saved revision (model matrices and errors from the NPZ)."""
+    key = f"r{item['number']}_"
+    names = study.output_names
+    inputs = study.settings.inputs or study.estimation.input_names
+    model = StateSpaceModel(
+        *(arrays[key + n] for n in ("A", "B", "C", "D")), fs=study.estimation.fs,
+        input_names=tuple(inputs), output_names=tuple(names),
+        elements=tuple(NonlinearElement.from_json(e) for e in item["model_elements"]))
+    errors = excited = simulated = None
+    if key + "simulated" in arrays:
+        errors = ModelErrors(tuple(names), *(arrays[key + n] for n in _ERROR_ARRAYS))
+        excited = arrays[key + "excited"]
+        simulated = arrays[key + "simulated"]
+    order = item["order"]
+    return Revision(
+        number=item["number"], note=item["note"], order=order,
+        elements=tuple(NonlinearElement.from_json(e) for e in item["elements"]),
+        identified_order=item["identified_order"], model=model,
+        coefficients=tuple(item["coefficients"]), modal=item["modal"], errors=errors,
+        excited=excited, simulated=simulated,
+        nrmse_percent=math.inf if item["nrmse_percent"] is None else item["nrmse_percent"],
+        noise_floor_percent=(math.nan if item["noise_floor_percent"] is None
+                             else item["noise_floor_percent"]),
+        failure=item["failure"],
+    )

@@ -1,0 +1,286 @@
+"""Hidden-effect tests of the diagnosis (issue 7).
+
+Each test simulates a structure with an effect the starting (linear) model does not
+contain, lets the diagnosis rank the candidate missing effects, adds the top candidate as
+a new revision and checks that the validation error falls to the noise floor. The
+structure is a 5-DOF grounded chain (unit masses, 10 kN/m springs, modes 16-34 Hz,
+damping 2-5 %) driven at x1 by periodic noise in 5-60 Hz; estimation and validation data
+are two independent realisations with 0.5 % output noise.
+
+Acceptance thresholds shared by the tests (from the issue): the right kind and location
+rank first; the validation NRMSE falls at least 10 times and ends within 3 times the
+noise floor.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+
+from fnsi.acquisition import acquire
+from fnsi.diagnosis import (
+    DiagnosisSettings,
+    Effect,
+    Location,
+    beats_noise_floor,
+    candidate_locations,
+)
+from fnsi.excitation import Excitation, periodic_noise
+from fnsi.identification import IdentificationSettings
+from fnsi.nonlinear import NonlinearElement
+from fnsi.structure import StructuralModel
+from fnsi.study import Study
+
+NAMES = ("x1", "x2", "x3", "x4", "x5")
+FS = 1000.0          # Hz: 16 x the band edge, so simulated velocities (central differences
+PERIOD = 2500        # in fnsi.simulation) are accurate to 1 % for velocity-dependent laws
+BAND = (5.0, 60.0)
+SETTINGS = IdentificationSettings(band=BAND, block_rows=15, order=10, max_order=20,
+                                  discard_periods=1, driving_points=(("F_x1", "x1"),))
+EFFORT = DiagnosisSettings(validated_candidates=3, curve_locations=1)
+REDUCTION = 10.0     # the validation NRMSE must fall at least 10 times (issue 7)
+FLOOR_MULTIPLE = 3.0  # ... and end within 3 times the noise floor (issue 7)
+
+
+def chain(*elements: NonlinearElement) -> StructuralModel:
+    """Grounded 5-DOF chain with Rayleigh damping and the given nonlinear elements."""
+    k = 1e4 * (np.diag([3.0, 3.0, 3.0, 3.0, 2.0]) - np.eye(5, k=1) - np.eye(5, k=-1))
+    m = np.eye(5)
+    return StructuralModel(m, 2e-4 * k + 1.0 * m, k, NAMES, elements)
+
+
+def measure(model: StructuralModel, seed: int, quantity: str = "displacement"):
+    """One realisation: 20 N RMS at x1, 4 periods of 2.5 s, 0.5 % output noise."""
+    signal = periodic_noise(PERIOD, FS, BAND, 20.0, seed=seed)
+    measurement, _ = acquire(model, Excitation.at_dof(signal, FS, "x1"), fs=FS,
+                             fs_int=4 * FS, periods=4, quantity=quantity,
+                             noise_percent=0.5, discard_periods=1, seed=seed + 100)
+    return measurement
+
+
+def linear_study(*elements: NonlinearElement, quantity: str = "displacement") -> Study:
+    """Study of the chain with hidden ``elements``, starting from a linear model."""
+    model = chain(*elements)
+    return Study.create(measure(model, 1, quantity), measure(model, 2, quantity), SETTINGS)
+
+
+def diagnose_and_add(study: Study):
+    """Diagnose the latest revision and add its top candidate as a new revision."""
+    diagnosis = study.diagnose(settings=EFFORT)
+    top = diagnosis.candidates[0]
+    if top.element is not None:
+        study.add_revision(add=[top.element], note=top.effect.value)
+    return diagnosis
+
+
+def assert_fixed(study: Study, before: int = 0) -> None:
+    """The latest revision reaches the acceptance thresholds relative to ``before``."""
+    first, last = study.revisions[before], study.revisions[-1]
+    floor = last.noise_floor_percent
+    assert first.nrmse_percent / last.nrmse_percent >= REDUCTION, study.history_table()
+    assert last.nrmse_percent <= FLOOR_MULTIPLE * floor, study.history_table()
+
+
+# -- hidden effects ------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def cubic_case():
+    study = linear_study(NonlinearElement("polynomial", "x3", exponent=3.0,
+                                          coefficients=(2e8,)))
+    return study, diagnose_and_add(study)
+
+
+def test_cubic_spring_to_ground_ranks_first_and_is_hardening(cubic_case):
+    study, diagnosis = cubic_case
+    top = diagnosis.candidates[0]
+    assert top.effect is Effect.CUBIC_STIFFNESS
+    assert top.location == Location("x3")
+    assert diagnosis.locations[0].location == Location("x3")
+    # The identified coefficient is the truth within 5 % (0.5 % noise, short record).
+    assert top.element.coefficients[0] == pytest.approx(2e8, rel=0.05)
+    assert "hardening cubic spring between x3 and ground" in top.explanation
+    assert_fixed(study)
+
+
+def test_coulomb_friction_between_two_dofs():
+    study = linear_study(NonlinearElement("coulomb_friction", "x2", "x3", width=0.01,
+                                          coefficients=(3.0,)))
+    diagnosis = diagnose_and_add(study)
+    top = diagnosis.candidates[0]
+    assert (top.effect, top.location) == (Effect.COULOMB_FRICTION, Location("x2", "x3"))
+    # Sliding force within 10 %: the smoothing width is only searched on a log grid.
+    assert abs(top.element.coefficients[0]) == pytest.approx(3.0, rel=0.1)
+    assert_fixed(study)
+
+
+def test_quadratic_damper_to_ground():
+    study = linear_study(NonlinearElement("quadratic_damping", "x4", coefficients=(100.0,)))
+    diagnosis = diagnose_and_add(study)
+    top = diagnosis.candidates[0]
+    assert (top.effect, top.location) == (Effect.QUADRATIC_DAMPING, Location("x4"))
+    # Coefficient within 5 % (0.5 % noise, 3 kept periods of 2.5 s).
+    assert top.element.coefficients[0] == pytest.approx(100.0, rel=0.05)
+    assert_fixed(study)
+
+
+def test_asymmetric_clearance_gaps_estimated():
+    study = linear_study(NonlinearElement("clearance", "x4", "x5", gap_negative=0.002,
+                                          gap_positive=0.001, coefficients=(1e4,)))
+    diagnosis = diagnose_and_add(study)
+    top = diagnosis.candidates[0]
+    assert (top.effect, top.location) == (Effect.CLEARANCE, Location("x4", "x5"))
+    gn, gp = top.element.gaps
+    # Gaps within 5 % of the truth: the fixed-pole search resolves 0.1 % of the range,
+    # noise and the linear model's bias leave a few percent.
+    assert gn == pytest.approx(0.002, rel=0.05)
+    assert gp == pytest.approx(0.001, rel=0.05)
+    assert "asymmetric clearance between x4 and x5" in top.explanation
+    assert_fixed(study)
+
+
+def test_two_simultaneous_effects_found_in_two_rounds():
+    study = linear_study(
+        NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(2e8,)),
+        NonlinearElement("quadratic_damping", "x5", coefficients=(60.0,)))
+    found = {(d.candidates[0].effect, d.candidates[0].location)
+             for d in (diagnose_and_add(study), diagnose_and_add(study))}
+    assert found == {(Effect.CUBIC_STIFFNESS, Location("x3")),
+                     (Effect.QUADRATIC_DAMPING, Location("x5"))}
+    assert_fixed(study)
+    history = study.history()
+    assert [row["number"] for row in history] == [0, 1, 2]
+    assert history[0]["nrmse_percent"] > history[1]["nrmse_percent"] > history[2][
+        "nrmse_percent"]
+
+
+def test_linear_structure_raises_no_false_alarm():
+    study = linear_study()
+    diagnosis = study.diagnose(settings=EFFORT)
+    assert not diagnosis.found
+    assert not any(c.beats_noise_floor for c in diagnosis.candidates)
+    assert diagnosis.summary.startswith("No candidate improves the validation error")
+    # A linear model of a linear structure already sits on the floor (within 20 %).
+    assert diagnosis.nrmse_before_percent < 1.2 * diagnosis.noise_floor_percent
+
+
+def test_too_low_order_is_a_missing_mode():
+    model = chain()
+    study = Study.create(measure(model, 1), measure(model, 2),
+                         dataclasses.replace(SETTINGS, order=8))
+    diagnosis = diagnose_and_add(study)
+    top = diagnosis.candidates[0]
+    assert top.effect is Effect.MISSING_MODE and top.element is None and top.order == 10
+    # The mode it adds is the chain's highest (34.2 Hz), within 1 %.
+    highest = model.linear_modes().frequencies[-1]
+    named = float(re.search(r"near ([0-9.]+) Hz", top.explanation).group(1))
+    assert named == pytest.approx(highest, rel=0.01)
+    study.add_revision(order=top.order)
+    assert_fixed(study)
+
+
+def test_velocity_measurements_work_the_same():
+    study = linear_study(NonlinearElement("polynomial", "x3", exponent=3.0,
+                                          coefficients=(2e8,)), quantity="velocity")
+    diagnosis = diagnose_and_add(study)
+    top = diagnosis.candidates[0]
+    assert (top.effect, top.location) == (Effect.CUBIC_STIFFNESS, Location("x3"))
+    assert_fixed(study)
+
+
+def test_acceleration_measurements_locate_the_effect():
+    study = linear_study(NonlinearElement("polynomial", "x3", exponent=3.0,
+                                          coefficients=(2e8,)), quantity="acceleration")
+    diagnosis = study.diagnose(settings=EFFORT)
+    # Screening and kind comparison find the cubic at x3. (The FNSI coefficient from
+    # doubly integrated accelerations is still biased upstream, so the validated error
+    # is not checked here; see the issue report.)
+    assert diagnosis.locations[0].location == Location("x3")
+    best = diagnosis.proposals[0]
+    assert (best.effect, best.location) == (Effect.CUBIC_STIFFNESS, Location("x3"))
+
+
+# -- SmallSat single (paper Section IV.A, single-3 channels, shortened records) -------------
+@pytest.fixture(scope="session")
+def smallsat_case():
+    from fnsi.smallsat import simulate_preset
+
+    outputs = ("NC2w_Z", "NC2b_Z", "W_Z")
+    data = [simulate_preset("single", periods=4, samples_per_period=7500, outputs=outputs,
+                            seed=seed)[0] for seed in (1, 2)]
+    settings = IdentificationSettings(band=(5.0, 50.0), block_rows=60, order=8,
+                                      discard_periods=1,
+                                      driving_points=(("F_NC2w_Z", "NC2w_Z"),))
+    study = Study.create(*data, settings)
+    return study, diagnose_and_add(study)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 7 acceptance not met yet: the identified "
+                   "SmallSat models (linear and with the clearance) simulate far from the "
+                   "noise floor or diverge, so validation cannot confirm the clearance; "
+                   "see the diagnosis report (requests to core-A, core-B, smallsat)")
+def test_smallsat_single_clearance_ranks_first_and_fixes_the_model(smallsat_case):
+    study, diagnosis = smallsat_case
+    top = diagnosis.candidates[0]
+    assert (top.effect, top.location) == (Effect.CLEARANCE, Location("NC2w_Z", "NC2b_Z"))
+    # Table 2: gap 1.5 mm; the fixed-pole search finds it within 5 %.
+    gn, gp = top.element.gaps
+    assert gn == pytest.approx(1.5, rel=0.05) and gp == pytest.approx(1.5, rel=0.05)
+    said = re.search(r"clearance of about ±([0-9.]+) between NC2w_Z and NC2b_Z",
+                     top.explanation)
+    assert said and float(said.group(1)) == pytest.approx(1.5, rel=0.05)
+    assert_fixed(study)
+
+
+# -- result shape and building blocks -------------------------------------------------------
+def test_diagnosis_json_follows_the_http_contract(cubic_case):
+    _, diagnosis = cubic_case
+    data = json.loads(json.dumps(diagnosis.to_json()))
+    first = data["candidates"][0]
+    assert {"effect", "element", "validation_nrmse_percent", "error_reduction_factor",
+            "explanation"} <= set(first)
+    assert first["element"]["kind"] == "polynomial" and first["element"]["dof"] == "x3"
+    values = [c["validation_nrmse_percent"] for c in data["candidates"]]
+    finite = [v for v in values if v is not None]
+    assert finite == sorted(finite)
+    mode = [c for c in data["candidates"] if c["effect"] == "missing_mode"]
+    assert mode and mode[0]["element"] is None and mode[0]["order"] == 12
+    assert data["stiffness_curves"], "the top location's spline curve is shown"
+
+
+def test_progress_is_reported_and_can_cancel(cubic_case):
+    study, _ = cubic_case
+    seen = []
+
+    def cancel(fraction: float, message: str) -> None:
+        seen.append(fraction)
+        if fraction > 0.35:
+            raise RuntimeError("cancelled by the user")
+
+    with pytest.raises(RuntimeError, match="cancelled"):
+        study.diagnose(0, settings=EFFORT, progress=cancel)
+    assert seen == sorted(seen) and seen[0] == 0.0
+
+
+def test_default_locations_pair_channels_on_one_axis():
+    names = ["NC2w_Z", "NC2b_Z", "NC2w_X", "W_Z"]
+    labels = {loc.label for loc in candidate_locations(names)}
+    assert labels == {"NC2w_Z-ground", "NC2b_Z-ground", "NC2w_X-ground", "W_Z-ground",
+                      "NC2w_Z-NC2b_Z", "NC2w_Z-W_Z", "NC2b_Z-W_Z"}
+    assert len(candidate_locations(NAMES)) == 5 + 10          # all pairs up to 12 outputs
+    assert len(candidate_locations([f"c{k}" for k in range(13)])) == 13   # grounds only
+    declared = candidate_locations(NAMES, [("x1", "x4")])
+    assert [loc.label for loc in declared][-1] == "x1-x4" and len(declared) == 6
+    with pytest.raises(ValueError, match="unknown outputs"):
+        candidate_locations(NAMES, [("x1", "x9")])
+
+
+def test_noise_floor_criterion():
+    assert beats_noise_floor(10.0, 1.0, 0.5)
+    assert not beats_noise_floor(0.6, 0.5, 0.5)     # removes less than the floor's energy
+    assert not beats_noise_floor(10.0, 9.5, 0.5)    # less than 10 % better
+    assert not beats_noise_floor(10.0, math.inf, 0.5)
+    assert beats_noise_floor(10.0, 7.0, math.nan)   # no floor: 20 % better is enough

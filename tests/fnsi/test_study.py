@@ -1,0 +1,155 @@
+"""Studies: revisions identified on estimation data and judged on validation data.
+
+The structure is the 5-DOF chain of :mod:`tests.fnsi.test_diagnosis` with a hidden cubic
+spring at x3; revision 0 is linear, revision 1 adds the cubic spring.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from fnsi.diagnosis import DiagnosisSettings
+from fnsi.nonlinear import NonlinearElement
+from fnsi.study import Study
+from fnsi.study_plots import diagnosis_figures, residual_map, study_figures
+from tests.fnsi.test_diagnosis import SETTINGS, chain, measure
+
+CUBIC = NonlinearElement("polynomial", "x3", exponent=3.0)
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="session")
+def data():
+    model = chain(NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(2e8,)))
+    return measure(model, 1), measure(model, 2)
+
+
+@pytest.fixture(scope="session")
+def study(data):
+    study = Study.create(*data, SETTINGS, connections=[("x2", "x4")], name="chain")
+    study.add_revision(add=[CUBIC])
+    return study
+
+
+def test_revision_errors_per_channel_in_percent_and_db(study):
+    linear, cubic = study.revisions
+    errors = linear.errors
+    assert errors.nrmse_percent.shape == (5,)
+    np.testing.assert_allclose(errors.nrmse_db, 20 * np.log10(errors.nrmse_percent / 100))
+    # The linear model misses the cubic spring: every channel is far above its floor;
+    # with it, the model reaches the floor (within 3 x, the acceptance threshold).
+    assert np.all(errors.nrmse_percent > 5 * errors.noise_floor_percent)
+    assert cubic.nrmse_percent < 3 * cubic.noise_floor_percent
+    # Frequency-domain error per channel and line, up to 3 x the band edge.
+    assert errors.error_spectrum.shape == (errors.frequencies.size, 5)
+    assert errors.frequencies.max() == pytest.approx(3 * SETTINGS.band[1], abs=0.5)
+    excited = linear.excited
+    in_band = (errors.frequencies >= 5.0) & (errors.frequencies <= 60.0)
+    assert excited[in_band].mean() > 0.3 and not excited[~in_band].any()
+    channel = study.to_json()["revisions"][0]["validation"]["channels"][2]
+    assert channel["relative_to_noise_floor_db"] == pytest.approx(
+        errors.nrmse_db[2] - errors.noise_floor_db[2])
+
+
+def test_overall_errors_weight_channels_by_their_power(study):
+    revision = study.revisions[0]
+    power = study.channel_power
+    expected = np.sqrt(np.sum(revision.errors.nrmse_percent**2 * power) / np.sum(power))
+    assert revision.nrmse_percent == pytest.approx(expected, rel=1e-12)
+    # The floor depends on the data only: the same for every revision, and the same as
+    # the channels' floors pooled alike.
+    floors = revision.errors.noise_floor_percent
+    assert study.noise_floor_percent == pytest.approx(
+        np.sqrt(np.sum(floors**2 * power) / np.sum(power)), rel=1e-9)
+    assert study.revisions[1].noise_floor_percent == study.noise_floor_percent
+
+
+def test_history_table_and_chart(study):
+    rows = study.history()
+    assert [r["number"] for r in rows] == [0, 1]
+    assert rows[1]["note"] == "add polynomial x3"
+    assert rows[1]["nrmse_percent"] < rows[0]["nrmse_percent"] / 10
+    table = study.history_table()
+    assert "add polynomial x3" in table and len(table.splitlines()) == 3
+    figures = study_figures(study, 0)
+    assert set(figures) == {"history.png", "revision-0-comparison.png",
+                            "revision-0-residual-spectra.png", "revision-0-residual-map.png"}
+    assert all(png.startswith(PNG) for png in figures.values())
+
+
+def test_residual_map_points_at_the_failing_model(study):
+    edges, before = residual_map(study.revisions[0], bands=8)
+    _, after = residual_map(study.revisions[1], bands=8)
+    assert before.shape == after.shape == (5, 8) and edges.size == 9
+    # Linear model: residual 20 dB or more above the noise somewhere; with the cubic
+    # spring the worst band is within 10 dB of the noise (floor within 3 x in NRMSE).
+    assert np.nanmax(before) > 20.0
+    assert np.nanmax(after) < np.nanmax(before) - 15.0
+
+
+def test_remove_and_order_change_make_new_revisions(study, data):
+    copy = Study.create(*data, SETTINGS)
+    copy.add_revision(add=[CUBIC.to_json()])
+    back = copy.add_revision(remove=[0])
+    assert back.elements == () and back.note == "remove polynomial x3"
+    # Same model as revision 0: the identification is deterministic.
+    assert back.nrmse_percent == pytest.approx(copy.revisions[0].nrmse_percent, rel=1e-9)
+    bigger = copy.add_revision(order=12, base=1)
+    assert bigger.identified_order == 12 and bigger.elements == (CUBIC,)
+    with pytest.raises(ValueError, match="already in revision"):
+        copy.add_revision(add=[CUBIC], base=1)
+    with pytest.raises(ValueError, match="is not in the revision"):
+        copy.add_revision(remove=[NonlinearElement("quadratic_damping", "x1")])
+    with pytest.raises(ValueError, match="not an output of the study"):
+        copy.add_revision(add=[NonlinearElement("quadratic_damping", "x9")])
+    assert len(copy.revisions) == 4   # failed requests store nothing
+
+
+def test_save_and_load_round_trip_without_pickle(study, tmp_path):
+    folder = study.save(tmp_path / "study")
+    assert {p.name for p in folder.iterdir()} == {"study.json", "estimation.npz",
+                                                  "validation.npz", "revisions.npz"}
+    with np.load(folder / "revisions.npz", allow_pickle=False) as arrays:
+        assert all(arrays[k].dtype != object for k in arrays.files)
+    loaded = Study.load(folder)
+    assert json.dumps(loaded.to_json(), sort_keys=True) == json.dumps(study.to_json(),
+                                                                     sort_keys=True)
+    np.testing.assert_array_equal(loaded.revisions[1].model.A, study.revisions[1].model.A)
+    np.testing.assert_array_equal(loaded.revisions[1].simulated, study.revisions[1].simulated)
+    assert loaded.connections == (("x2", "x4"),)
+
+
+def test_loaded_study_can_be_diagnosed_and_extended(study, tmp_path):
+    loaded = Study.load(study.save(tmp_path / "again"))
+    diagnosis = loaded.diagnose(settings=DiagnosisSettings(validated_candidates=1,
+                                                           curve_locations=0))
+    assert not diagnosis.found       # revision 1 already holds the hidden effect
+    figures = diagnosis_figures(diagnosis)
+    assert {"screening.png", "candidates.png"} <= set(figures)
+    assert all(png.startswith(PNG) for png in figures.values())
+
+
+def test_json_is_strict(study):
+    text = json.dumps(study.to_json(), allow_nan=False)
+    assert json.loads(text)["revisions"][1]["elements"] == [CUBIC.to_json()]
+    spectra = study.to_json(spectra=True)["revisions"][0]["validation"]["spectra"]
+    lines = len(spectra["frequency_hz"])
+    assert len(spectra["error_db"]) == len(spectra["excited"]) == lines
+    assert len(spectra["error_db"][0]) == 5
+
+
+def test_bad_inputs_say_what_to_change(data, tmp_path):
+    estimation, validation = data
+    with pytest.raises(ValueError, match="differ in output_names"):
+        Study(estimation, validation.select(outputs=("x1", "x2")), SETTINGS)
+    with pytest.raises(ValueError, match="must join two different outputs"):
+        Study(estimation, validation, SETTINGS, connections=[("x1", "x7")])
+    with pytest.raises(ValueError, match=r"holds no study\.json"):
+        Study.load(tmp_path)
+    with pytest.raises(ValueError, match="no revision yet"):
+        Study(estimation, validation, SETTINGS).add_revision(order=8)
+    assert math.isfinite(Study(estimation, validation, SETTINGS).noise_floor_percent)
