@@ -34,21 +34,21 @@ _POLE_STYLE: dict[PoleClass, tuple[str, str, float, str]] = {
 }
 
 
-def _figure(width: float, height: float) -> Figure:
+def new_figure(width: float, height: float) -> Figure:
     """A figure of ``width`` x ``height`` inches on its own Agg canvas."""
     figure = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
     FigureCanvasAgg(figure)
     return figure
 
 
-def _png(figure: Figure) -> bytes:
+def png_bytes(figure: Figure) -> bytes:
     """PNG content of a figure."""
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=DPI)
     return buffer.getvalue()
 
 
-def _grid(count: int, columns: int = 2) -> tuple[int, int]:
+def panel_grid(count: int, columns: int = 2) -> tuple[int, int]:
     """Rows and columns of a panel grid for ``count`` panels."""
     columns = min(columns, count)
     return -(-count // columns), columns
@@ -87,7 +87,7 @@ def plot_stabilisation(
     bytes
         PNG content.
     """
-    figure = _figure(10.0 if singular_values is not None else 9.0, 6.0)
+    figure = new_figure(10.0 if singular_values is not None else 9.0, 6.0)
     if singular_values is not None:
         ax, ax_sv = figure.subplots(1, 2, sharey=True, width_ratios=(5, 1))
     else:
@@ -133,7 +133,7 @@ def plot_stabilisation(
         ax_sv.set_xlabel("sigma_n / sigma_1 [-]")
         ax_sv.set_title("Singular values")
         ax_sv.grid(True, alpha=0.3)
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_frf(
@@ -181,7 +181,7 @@ def plot_frf(
     if unknown:
         raise ValueError(f"unknown (output, input) pairs {unknown}; outputs {outputs}, "
                          f"inputs {inputs}")
-    figure = _figure(max(4.5 * len(pairs), 6.0), 6.0)
+    figure = new_figure(max(4.5 * len(pairs), 6.0), 6.0)
     axes = figure.subplots(2, len(pairs), sharex=True, squeeze=False, height_ratios=(2, 1))
     for column, (out, inp) in enumerate(pairs):
         h_meas = measured[:, outputs.index(out), inputs.index(inp)]
@@ -204,7 +204,7 @@ def plot_frf(
         phase.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize="small")
     figure.suptitle(title)
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_coefficients(
@@ -247,7 +247,7 @@ def plot_coefficients(
     if mu.shape != (np.size(frequencies), len(names)):
         raise ValueError(f"coefficients must be (lines, {len(names)}) for the given names and "
                          f"{np.size(frequencies)} frequencies; got {mu.shape}")
-    figure = _figure(9.0, 6.0)
+    figure = new_figure(9.0, 6.0)
     real, imaginary = figure.subplots(2, 1, sharex=True)
     labelled = mu.shape[1] <= 12   # beyond that a legend hides the curves
     for j, name in enumerate(names):
@@ -269,7 +269,7 @@ def plot_coefficients(
     real.set_title("Real part")
     imaginary.set_title("Imaginary part")
     figure.suptitle(title)
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_stiffness(
@@ -299,8 +299,8 @@ def plot_stiffness(
     if truths is not None and len(truths) != len(curves):
         raise ValueError(f"give one truth (or None) per curve: {len(truths)} for "
                          f"{len(curves)} curves")
-    rows, columns = _grid(len(curves))
-    figure = _figure(5.0 * columns, 3.8 * rows)
+    rows, columns = panel_grid(len(curves))
+    figure = new_figure(5.0 * columns, 3.8 * rows)
     axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
     for k, curve in enumerate(curves):
         ax = axes[k]
@@ -325,7 +325,7 @@ def plot_stiffness(
     for ax in axes[len(curves):]:
         ax.set_visible(False)
     figure.suptitle(title)
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_macx(
@@ -366,7 +366,7 @@ def plot_macx(
         raise ValueError(f"macx must be ({np.size(frequencies_a)}, {np.size(frequencies_b)}) "
                          f"for the given frequencies; got {values.shape}")
     size = max(4.5, 0.55 * max(values.shape) + 2.5)
-    figure = _figure(size + 1.0, size)
+    figure = new_figure(size + 1.0, size)
     ax = figure.subplots()
     image = ax.imshow(values, vmin=0.0, vmax=1.0, cmap="Blues", origin="upper")
     if values.size <= 400:
@@ -379,7 +379,7 @@ def plot_macx(
     ax.set_ylabel(f"{label_a} modes [Hz]")
     figure.colorbar(image, ax=ax, label="MACX [-]", shrink=0.8)
     ax.set_title(title)
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_errors(errors: ModelErrors, *, outputs: Sequence[str] | None = None,
@@ -407,8 +407,8 @@ def plot_errors(errors: ModelErrors, *, outputs: Sequence[str] | None = None,
     if unknown or not names:
         raise ValueError(f"unknown or no outputs {unknown}; choose among "
                          f"{list(errors.output_names)}")
-    rows, columns = _grid(len(names))
-    figure = _figure(5.0 * columns, 3.5 * rows)
+    rows, columns = panel_grid(len(names))
+    figure = new_figure(5.0 * columns, 3.5 * rows)
     axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
     for ax, name in zip(axes, names, strict=False):
         k = errors.output_names.index(name)
@@ -427,4 +427,4 @@ def plot_errors(errors: ModelErrors, *, outputs: Sequence[str] | None = None,
     for ax in axes[len(names):]:
         ax.set_visible(False)
     figure.suptitle(title)
-    return _png(figure)
+    return png_bytes(figure)

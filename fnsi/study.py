@@ -5,8 +5,8 @@ amplitude of the excitation), optional declared connections (pairs of channels a
 element could join) and a sequence of model revisions. Revision 0 is the user's starting
 model, often linear (an order and no nonlinear elements). Every revision is identified
 with FNSI on the estimation data (:func:`fnsi.identification.identify`), simulated to
-periodic steady state with the validation input (:func:`fnsi.simulation.simulate_periodic`)
-and compared with the validation outputs (:func:`fnsi.errors.model_errors`): per-channel
+periodic steady state with the validation input and compared with the validation outputs
+(:func:`fnsi.validation.compare`): per-channel
 and overall NRMSE in % and dB, the noise floor, and the error on every DFT line.
 
 The error history shows revision by revision whether the model improves; the diagnosis
@@ -35,18 +35,16 @@ from fnsi.errors import ModelErrors, model_errors
 from fnsi.identification import IdentificationResult, IdentificationSettings, identify
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
-from fnsi.simulation import simulate_periodic
-from fnsi.spectra import integrate_periodic, kept_record
+from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve
+from fnsi.validation import compare
 
 if TYPE_CHECKING:
     from fnsi.diagnosis import Diagnosis, DiagnosisSettings
 
 Progress = Callable[[float, str], None]
 FORMAT = "fnsi-study/1"
-_INTEGRATIONS = {"displacement": 0, "velocity": 1, "acceleration": 2}
-ERROR_BAND_FACTOR = 3.0
 """Error spectra reach this multiple of the band's upper edge (harmonics of a
 nonlinearity land there), capped at Nyquist."""
 
@@ -355,25 +353,17 @@ class Study:
         result = identify(self.estimation, settings,
                           lambda f, m: report(0.9 * f, m))
         report(0.9, "simulating the validation input")
-        validation = self.validation.select(inputs=result.model.input_names,
-                                            outputs=result.model.output_names)
-        kept = validation.periods - settings.discard_periods
-        measured = kept_record(validation.y, validation.periods, settings.discard_periods)
-        u = validation.u[:, -validation.period_length:]
         try:
-            periods = [simulate_periodic(result.model, u[r]).y
-                       for r in range(validation.n_realisations)]
+            comparison = compare(result.model, self.validation,
+                                 discard_periods=settings.discard_periods,
+                                 band_high=settings.band[1])
         except ValueError as error:
             return Evaluation(elements, result, None, None, None, failure=str(error))
-        # FNSI models predict displacement; compare in the measured quantity (exact
-        # periodic differentiation).
-        simulated = integrate_periodic(np.stack(periods), validation.fs,
-                                       -_INTEGRATIONS[validation.quantity])
-        high = min(validation.fs / 2, ERROR_BAND_FACTOR * settings.band[1])
-        errors = model_errors(measured, simulated, validation.fs, periods=kept,
-                              output_names=validation.output_names, band=(0.0, high))
+        errors = comparison.errors
+        validation = self.validation.select(inputs=result.model.input_names,
+                                            outputs=result.model.output_names)
         report(1.0, "validated")
-        return Evaluation(elements, result, simulated, errors,
+        return Evaluation(elements, result, comparison.simulated, errors,
                           self._excited_lines(validation, errors.frequencies),
                           pooled_percent(errors.nrmse_percent, self.channel_power))
 

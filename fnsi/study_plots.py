@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fnsi.diagnosis import Diagnosis
-from fnsi.plots import _figure, _grid, _png
+from fnsi.plots import new_figure, panel_grid, png_bytes
 from fnsi.study import Revision, Study
 
 MAX_PANELS = 6
@@ -65,7 +65,7 @@ def plot_comparison(study: Study, revision: int = -1, *, window_s: float | None 
     fs = validation.fs
     length = min(n, round((window_s or min(n / fs / 5, 2.0)) * fs))
     t = np.arange(length) / fs
-    figure = _figure(11.0, 2.6 * len(picks))
+    figure = new_figure(11.0, 2.6 * len(picks))
     axes = figure.subplots(len(picks), 2, squeeze=False)
     frequencies = np.fft.rfftfreq(n, 1 / fs)
     top = min(fs / 2, 3 * study.settings.band[1])
@@ -87,7 +87,7 @@ def plot_comparison(study: Study, revision: int = -1, *, window_s: float | None 
     axes[-1, 0].set_xlabel("Time [s]")
     axes[-1, 1].set_xlabel("Frequency [Hz]")
     figure.suptitle(f"Revision {rev.number} ({rev.note}): validation, measured vs model")
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_residual_spectra(study: Study, revision: int = -1,
@@ -101,8 +101,8 @@ def plot_residual_spectra(study: Study, revision: int = -1,
     errors = _errors(rev)
     names = rev.model.output_names
     picks = ([names.index(c) for c in channels] if channels else _worst_channels(rev))
-    rows, columns = _grid(len(picks))
-    figure = _figure(5.5 * columns, 3.4 * rows)
+    rows, columns = panel_grid(len(picks))
+    figure = new_figure(5.5 * columns, 3.4 * rows)
     axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False, sharex=True)).ravel()
     f = errors.frequencies
     excited = rev.excited
@@ -121,7 +121,7 @@ def plot_residual_spectra(study: Study, revision: int = -1,
     for ax in axes[len(picks):]:
         ax.set_visible(False)
     figure.suptitle(f"Revision {rev.number}: residual spectra against the noise floor")
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def residual_map(revision: Revision, bands: int = 12) -> tuple[np.ndarray, np.ndarray]:
@@ -153,7 +153,7 @@ def plot_residual_map(study: Study, revision: int = -1, bands: int = 12) -> byte
     rev = study.revisions[revision]
     edges, excess = residual_map(rev, bands)
     names = rev.model.output_names
-    figure = _figure(1.2 + 0.55 * bands, 1.4 + 0.22 * len(names))
+    figure = new_figure(1.2 + 0.55 * bands, 1.4 + 0.22 * len(names))
     ax = figure.subplots()
     limit = max(float(np.nanmax(np.abs(excess[np.isfinite(excess)]), initial=1.0)), 1.0)
     image = ax.imshow(excess, aspect="auto", cmap="RdBu_r", vmin=-limit, vmax=limit,
@@ -164,7 +164,7 @@ def plot_residual_map(study: Study, revision: int = -1, bands: int = 12) -> byte
     ax.set_xlabel("Band centre [Hz]")
     figure.colorbar(image, ax=ax, label="residual / noise [dB]")
     ax.set_title(f"Revision {rev.number}: where the model fails")
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_history(study: Study) -> bytes:
@@ -173,7 +173,7 @@ def plot_history(study: Study) -> bytes:
     numbers = [r["number"] for r in rows]
     values = [r["nrmse_percent"] or np.nan for r in rows]
     floors = [r["noise_floor_percent"] or np.nan for r in rows]
-    figure = _figure(max(5.0, 1.0 + 1.1 * len(rows)), 4.0)
+    figure = new_figure(max(5.0, 1.0 + 1.1 * len(rows)), 4.0)
     ax = figure.subplots()
     ax.bar(numbers, values, color="tab:blue", label="validation NRMSE")
     ax.plot(numbers, floors, "k--", marker="_", ms=20, label="noise floor")
@@ -186,7 +186,7 @@ def plot_history(study: Study) -> bytes:
     ax.set_title("Error history")
     ax.legend(fontsize="small")
     ax.grid(True, which="both", axis="y", alpha=0.3)
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_candidates(diagnosis: Diagnosis) -> bytes:
@@ -198,7 +198,7 @@ def plot_candidates(diagnosis: Diagnosis) -> bytes:
               for c in candidates]
     values = [c.validation_nrmse_percent if math.isfinite(c.validation_nrmse_percent)
               else np.nan for c in candidates]
-    figure = _figure(7.0, 1.2 + 0.55 * len(candidates))
+    figure = new_figure(7.0, 1.2 + 0.55 * len(candidates))
     ax = figure.subplots()
     colours = ["tab:green" if c.beats_noise_floor else "0.6" for c in candidates]
     y = np.arange(len(candidates))[::-1]
@@ -211,7 +211,7 @@ def plot_candidates(diagnosis: Diagnosis) -> bytes:
     ax.set_xlabel("Validation NRMSE with the candidate [%]")
     ax.legend(fontsize="small")
     ax.set_title(f"Revision {diagnosis.revision}: candidate missing effects")
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def plot_screening(diagnosis: Diagnosis, count: int = 4) -> bytes:
@@ -219,8 +219,8 @@ def plot_screening(diagnosis: Diagnosis, count: int = 4) -> bytes:
     scores = [s for s in diagnosis.locations if s.refined][:count]
     if not scores:
         raise ValueError("the diagnosis screened no location")
-    rows, columns = _grid(len(scores))
-    figure = _figure(4.6 * columns, 3.3 * rows)
+    rows, columns = panel_grid(len(scores))
+    figure = new_figure(4.6 * columns, 3.3 * rows)
     axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
     for ax, score in zip(axes, scores, strict=False):
         ax.plot(score.curve_x, score.curve_shape / max(np.max(np.abs(score.curve_shape)),
@@ -234,7 +234,7 @@ def plot_screening(diagnosis: Diagnosis, count: int = 4) -> bytes:
     for ax in axes[len(scores):]:
         ax.set_visible(False)
     figure.suptitle("Screening: spline restoring-force shapes (automatic knots)")
-    return _png(figure)
+    return png_bytes(figure)
 
 
 def study_figures(study: Study, revision: int = -1) -> dict[str, bytes]:
