@@ -111,18 +111,20 @@ def _stacked(X: np.ndarray, z: np.ndarray, block_rows: int, out: np.ndarray) -> 
         power *= z
 
 
-def _projected_outputs(E: np.ndarray, Y: np.ndarray, z: np.ndarray,
-                       block_rows: int) -> np.ndarray:
+def _projected_outputs(E: np.ndarray, Y: np.ndarray, z: np.ndarray, block_rows: int,
+                       *, r_only: bool) -> np.ndarray:
     """Z with Z^T Z = Y_i P Y_i^T, P the projector onto the complement of the rows of E_i.
 
-    Two QR-based routes, the cheaper for the shape: with fewer extended inputs than
-    outputs, the thin Q_1 of E_i^T and Z = Y_i^T - Q_1 (Q_1^T Y_i^T) (2K x l i); otherwise
-    the R factor only of [E_i; Y_i]^T and Z = R_22 (l i x l i), which avoids forming Q_1.
+    Two QR-based routes, the cheaper for the shape: the R factor only of [E_i; Y_i]^T and
+    Z = R_22 (l i x l i), which avoids forming Q_1; or, with fewer extended inputs than
+    outputs and a large l i (``r_only`` false), the thin Q_1 of E_i^T and
+    Z = Y_i^T - Q_1 (Q_1^T Y_i^T) (2K x l i), whose (2K x l i) QR is never computed
+    because the randomised SVD only multiplies by Z.
     """
     K, q = E.shape
     n_out = Y.shape[1]
     qi, li = q * block_rows, n_out * block_rows
-    if q < n_out:
+    if q < n_out and not r_only:
         Et = np.empty((2 * K, qi))
         _stacked(E, z, block_rows, Et)
         Q1 = scipy.linalg.qr(Et, mode="economic", overwrite_a=True, check_finite=False)[0]
@@ -154,13 +156,19 @@ def _noise_weight(noise_covariance: np.ndarray, z: np.ndarray, block_rows: int) 
     return np.linalg.cholesky(cov + ridge * np.eye(cov.shape[0]))
 
 
+def _exact_svd(rows: int, k: int) -> bool:
+    """Whether k singular vectors of ``rows`` rows are computed exactly (else randomised)."""
+    return rows <= 4 * k
+
+
 def _dominant_subspace(Z: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Leading k left singular vectors and values of Z^T, with Z of shape (cols, rows).
 
-    Exact when rows <= 4 k (thin QR then SVD of R), else randomised subspace iteration.
+    Exact when :func:`_exact_svd` (thin QR then SVD of R), else randomised subspace
+    iteration.
     """
     cols, rows = Z.shape
-    if rows <= 4 * k:
+    if _exact_svd(rows, k):
         R = scipy.linalg.qr(Z, mode="r", check_finite=False)[0][:rows]
         U, s, _ = scipy.linalg.svd(R.T, full_matrices=False, check_finite=False)
         return U[:, :k], s[:k]
@@ -329,12 +337,13 @@ def decompose(spectra: Spectra, *, block_rows: int, max_order: int, weighting: b
                          "band); remove them")
     scaled = Spectra(spectra.frequencies, spectra.fs, E / scale, Y, spectra.input_names,
                      spectra.output_names, spectra.noise_covariance)
+    k = min(max_order + OVERSAMPLING, n_out * block_rows)
     Z = _projected_outputs((E / scale).reshape(R * N, q), Y.reshape(R * N, n_out),
-                           np.tile(spectra.z, R), block_rows)
+                           np.tile(spectra.z, R), block_rows,
+                           r_only=_exact_svd(n_out * block_rows, k))
     L = _noise_weight(spectra.noise_covariance, spectra.z, block_rows) if weighting else None
     if L is not None:
         Z = scipy.linalg.solve_triangular(L, Z.T, lower=True, check_finite=False).T
-    k = min(max_order + OVERSAMPLING, n_out * block_rows)
     U, s = _dominant_subspace(Z, k)
     gamma = U if L is None else L @ U
     return SubspaceDecomposition(
