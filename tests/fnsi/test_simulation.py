@@ -223,3 +223,63 @@ def test_identified_model_reproduces_the_measurement_near_the_noise_floor():
     # noise in the measured bases); 1.5 % and a tenfold gain bound both with margin
     assert np.all(nrmse["nonlinear"] < 1.5)
     assert np.all(nrmse["nonlinear"] < nrmse["linear"] / 10)
+
+
+def _smallsat_true_model(data, stop: NonlinearElement, band: tuple[float, float],
+                         order: int) -> StateSpaceModel:
+    """Discrete model of order ``order`` fitted to the true extended FRF of SmallSat.
+
+    H^e = [H_w, -mu (H_w - H_b)] with H_w, H_b the receptance columns (K - w^2 M + j w C)^-1
+    of forces at the stop's two nodes (Eq. 17), on 0.5 Hz lines in ``band``; the FNSI
+    decomposition of that exact FRF times a random extended input gives the model.
+    """
+    from fnsi.smallsat import smallsat_model
+    from fnsi.spectra import Spectra
+    from fnsi.subspace import decompose
+
+    structure = smallsat_model()
+    rows = [structure.dof_index(name) for name in data.output_names]
+    ends = [structure.dof_index(stop.dof), structure.dof_index(stop.ref)]
+    frequencies = np.arange(band[0], band[1], 0.5)
+    H = np.empty((frequencies.size, len(rows), 2), dtype=complex)
+    for k, w in enumerate(2 * np.pi * frequencies):
+        dynamic = structure.K - w**2 * structure.M + 1j * w * structure.C
+        columns = np.linalg.solve(dynamic, np.eye(structure.n_dofs)[:, ends])[rows]
+        H[k] = np.column_stack((columns[:, 0], -stop.coefficients[0] * (columns[:, 0]
+                                                                         - columns[:, 1])))
+    rng = np.random.default_rng(0)
+    E = rng.normal(size=(2, frequencies.size, 2)) + 1j * rng.normal(size=(2, frequencies.size, 2))
+    spectra = Spectra(frequencies, data.fs, E, np.einsum("klq,rkq->rkl", H, E),
+                      (*data.input_names, stop.name), data.output_names)
+    element = NonlinearElement("clearance", stop.dof, stop.ref, gap=stop.gap)
+    return decompose(spectra, block_rows=20, max_order=order, n_inputs=1,
+                     elements=(element,)).model(order)
+
+
+def test_stiff_smallsat_contact_simulates_to_the_floor_with_its_out_of_band_dynamics():
+    """SmallSat single (Section IV.A): the implicit feed-through handles the stiff NC2-Z stop.
+
+    The stop (slope 100) is about ten times stiffer than the structure between its nodes
+    (static relative flexibility 0.107), and the contact force excites heavily damped
+    WEMS modes at 55-100 Hz. A model holding those modes (order 24 on 5-150 Hz)
+    reproduces the Newmark record to the noise floor, so the simulation is not what limits
+    identified models; a model of the in-band modes only (order 8, fitted to the same
+    truth in 5-50 Hz) lumps them into D^e and misses the contact path to NC2b_Z by ~10 %,
+    which the stiff loop turns into errors of 5 % and more.
+    """
+    from fnsi.smallsat import simulate_preset
+    from fnsi.validation import compare
+
+    data, truth = simulate_preset("single", periods=4, samples_per_period=7500,
+                                  outputs=("NC2w_Z", "NC2b_Z", "W_Z"), seed=2)
+    stop = next(e for e in truth.elements if (e.dof, e.ref) == ("NC2w_Z", "NC2b_Z"))
+    full = compare(_smallsat_true_model(data, stop, (5.0, 150.0), 24), data,
+                   discard_periods=1, band_high=50.0).errors
+    in_band = compare(_smallsat_true_model(data, stop, (5.0, 50.0), 8), data,
+                      discard_periods=1, band_high=50.0).errors
+    # observed 1.0-1.13 x the floor over seeds of the random input and block rows 20-30;
+    # 1.5 x leaves room for the noise of one realisation
+    assert np.all(full.nrmse_percent < 1.5 * full.noise_floor_percent)
+    # observed 200-350 x the floor here (25-35 x on 5 s periods): in-band modes alone
+    # cannot meet issue 7's 3 x
+    assert np.all(in_band.nrmse_percent > 10 * in_band.noise_floor_percent)
