@@ -1,0 +1,960 @@
+"""Reproduce the paper's Section IV on our SmallSat model (DESIGN.md section 5).
+
+Four reference workloads, each identified with the library exactly as a user would
+(:func:`fnsi.identification.identify`) from the simulated SmallSat tests of
+:func:`fnsi.smallsat.simulate_preset`:
+
+``single-39``
+    100 N RMS at NC2w_Z, 39 outputs, i = 50, clearance basis at NC2-Z, automatic order
+    (paper Tables 4, 5 first line, Figures 5, 6, 7a).
+``single-3``
+    same data, outputs NC2w_Z, NC2b_Z, W_Z, i = 100, the 540 harmonic lines averaged over
+    the periods (Tables 5 second line, 6, Figures 7b, 8).
+``spline-3``
+    as single-3 with a cubic-spline basis at NC2-Z (Table 7, Figures 9, 10), twice: with the
+    paper's uneven knots (13 intervals, 10 within +-10 % of the clearances) and with
+    automatic uniform knots that use no knowledge of the clearances; i from the dimension
+    rule of :func:`spline_block_rows` (the paper's i = 100 is shown too, it cannot work).
+``multi-18``
+    200 N RMS at W along the X-Y diagonal, 18 outputs, i = 50, eight 9-interval splines
+    with automatic knots (Tables 8, 9, Figures 11, 12).
+
+Simulated data are cached in ``benchmarks/cache/`` under a hash of the request (preset,
+simulation settings, tuned model parameters and the source of the simulator), so only a
+changed request is simulated again. The report goes to ``benchmarks/results/paper.md``
+with its PNG figures beside it. Every number in the report is measured by this script,
+except the paper's own values, which are quoted from its tables.
+
+All identifications weight the SVD by the output noise covariance and choose the order
+automatically (falling back to the paper's order when nothing stabilises, as reported).
+Timings are single-threaded BLAS unless OPENBLAS_NUM_THREADS is set (see :data:`BLAS_THREADS`).
+
+Identified modes are paired with the true modes of the model by a one-to-one assignment
+that maximises MACX and penalises frequency distance (:func:`match_modes`); every mode
+kept by the automatic order choice enters the acceptance maxima, so a spurious mode
+(no true partner) fails the check rather than being hidden.
+
+Last output line: one JSON object with the headline numbers of each workload.
+
+Run: ``make bench-paper`` (or ``.venv/bin/python benchmarks/paper.py``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import scipy.optimize
+
+from fnsi.acquisition import Truth
+from fnsi.identification import (
+    IdentificationResult,
+    IdentificationSettings,
+    extended_spectra,
+    identify,
+)
+from fnsi.measurement import Measurement
+from fnsi.modal import ModalTable
+from fnsi.nonlinear import NonlinearElement
+from fnsi.plots import plot_coefficients, plot_macx, plot_stabilisation, plot_stiffness
+from fnsi.smallsat import (
+    AXIAL_ADDED,
+    AXIAL_GAP,
+    TABLE_3,
+    TABLE_8,
+    simulate_preset,
+    smallsat_model,
+    tuned_parameters,
+)
+from fnsi.spectra import band_lines, output_spectra
+from fnsi.stabilisation import PoleClass, classify_poles, macx_matrix
+from fnsi.stiffness import StiffnessCurve, curve_error_percent, stiffness_curve
+
+HERE = Path(__file__).resolve().parent
+CACHE = HERE / "cache"
+RESULTS = HERE / "results"
+FNSI = HERE.parent / "fnsi"
+
+#: The paper's tests (Section IV.A and IV.C): 8 periods of 30,000 samples at 2.5 kHz.
+SIMULATION = {"periods": 8, "samples_per_period": 30000, "seed": 0, "noise_percent": 0.5}
+#: Source files whose change changes the simulated data (part of the cache key).
+SIMULATOR_SOURCES = ("smallsat.py", "smallsat_parameters.json", "acquisition.py",
+                     "newmark.py", "nonlinear.py", "excitation.py", "structure.py")
+BAND = (5.0, 50.0)
+DISCARD = 2
+NC2 = ("NC2w_Z", "NC2b_Z")
+THREE = ("NC2w_Z", "NC2b_Z", "W_Z")
+
+#: Paper Table 4: mode -> (error on frequency %, error on damping %), order 18, 39 outputs.
+PAPER_TABLE_4 = {1: (0.16, -0.01), 3: (0.03, -0.59), 5: (0.11, -0.37), 7: (-0.03, -2.68),
+                 8: (0.03, 0.25), 9: (-6.05, -21.48), 10: (-0.13, 0.68), 11: (-0.28, -0.28)}
+#: Paper Table 5: (mean Re mu, error %, log10(Re/Im), time s) with 39 and with 3 outputs.
+PAPER_TABLE_5 = {"single-39": (100.03, 0.03, 3.21, 119.0), "single-3": (100.29, 0.29, 2.19, 1.8)}
+#: Paper Tables 6, 7, 9: mode -> (error on frequency %, error on damping %, MACX).
+PAPER_TABLE_6 = {1: (0.17, -0.04, 1.00), 3: (0.02, -0.35, 1.00), 5: (0.06, -3.10, 1.00),
+                 8: (0.02, -7.34, 1.00)}
+PAPER_TABLE_7 = {1: (0.02, -5.45, 1.00), 3: (-0.15, -5.62, 1.00), 5: (0.44, 3.00, 1.00),
+                 8: (-3.70, -5.79, 1.00)}
+PAPER_TABLE_9 = {1: (0.39, -1.35, 1.00), 2: (0.59, 0.01, 1.00), 3: (0.06, -2.73, 1.00),
+                 4: (0.38, -0.87, 1.00), 5: (0.79, 4.43, 0.99)}
+#: Runs of the timed single-39 and single-3 identifications; the best wall time counts.
+TIMING_REPEATS = 3
+#: Paper orders chosen from the stabilisation diagrams (Figures 5, 8, 9, 11).
+PAPER_ORDER = {"single-39": 18, "single-3": 8, "spline-3": 8, "multi-18": 10}
+
+
+# -- simulated data, cached -----------------------------------------------------------------
+def _truth_from_json(data: dict) -> Truth:
+    modal = data["modal"]
+    shapes = np.asarray(modal["shapes_real"]) + 1j * np.asarray(modal["shapes_imag"])
+    return Truth(
+        ModalTable(np.asarray(modal["frequencies"]), np.asarray(modal["damping_ratios"]),
+                   shapes, tuple(modal["output_names"])),
+        tuple(NonlinearElement.from_json(e) for e in data["elements"]),
+        {k: int(v) for k, v in data["exceedances"].items()},
+        int(data["discard_periods"]),
+    )
+
+
+def simulated(preset: str) -> tuple[Measurement, Truth, dict]:
+    """Measurement and truth of a SmallSat preset, simulated once and cached on disk.
+
+    The cache key is the SHA-256 of the request: preset name, simulation settings, the
+    tuned model parameters and the source of the simulator (a retuned or changed model
+    is simulated again).
+
+    Returns
+    -------
+    Measurement, Truth, dict
+        The dict holds ``cached`` (bool), ``simulation_s`` (wall time of the simulation
+        when it ran) and ``key``.
+    """
+    sources = hashlib.sha256(b"".join((FNSI / f).read_bytes() for f in SIMULATOR_SOURCES))
+    request = {"preset": preset, **SIMULATION, "parameters": asdict(tuned_parameters()),
+               "simulator": sources.hexdigest()}
+    key = hashlib.sha256(json.dumps(request, sort_keys=True).encode()).hexdigest()[:16]
+    data, meta = CACHE / f"{preset}-{key}.npz", CACHE / f"{preset}-{key}.json"
+    if data.exists() and meta.exists():
+        stored = json.loads(meta.read_text())
+        return (Measurement.from_npz(data), _truth_from_json(stored["truth"]),
+                {"cached": True, "simulation_s": stored["simulation_s"], "key": key})
+    start = time.perf_counter()
+    measurement, truth = simulate_preset(preset, **SIMULATION)
+    elapsed = time.perf_counter() - start
+    CACHE.mkdir(parents=True, exist_ok=True)
+    measurement.to_npz(data)
+    meta.write_text(json.dumps({"request": request, "truth": truth.to_json(),
+                                "simulation_s": elapsed}))
+    return measurement, truth, {"cached": False, "simulation_s": elapsed, "key": key}
+
+
+# -- comparison with the truth ----------------------------------------------------------------
+@dataclass(frozen=True)
+class ModeMatch:
+    """An identified mode and its true partner.
+
+    ``spurious`` marks a mode without a credible partner (MACX below
+    :data:`MIN_PARTNER_MACX` or more than :data:`MAX_PARTNER_DISTANCE` away in frequency):
+    its errors are then taken against the nearest true frequency, so that it still counts
+    (and fails) in the acceptance maxima.
+    """
+
+    identified: int
+    truth: int
+    frequency_error_pct: float
+    damping_error_pct: float
+    macx: float
+    spurious: bool
+
+
+#: Smallest MACX, and largest relative frequency distance, of a credible true partner.
+MIN_PARTNER_MACX = 0.5
+MAX_PARTNER_DISTANCE = 0.05
+
+
+def in_band(table: ModalTable, band: tuple[float, float] = BAND) -> ModalTable:
+    """The modes of ``table`` whose natural frequency lies in ``band``."""
+    keep = (table.frequencies >= band[0]) & (table.frequencies <= band[1])
+    return ModalTable(table.frequencies[keep], table.damping_ratios[keep],
+                      table.shapes[keep], table.output_names)
+
+
+def match_modes(identified: ModalTable, truth: ModalTable) -> list[ModeMatch]:
+    """Pair identified and true modes one to one (MACX and frequency, Hungarian assignment).
+
+    Cost of a pair: (1 - MACX) + 10 |f_id / f_true - 1|, so a 1 % frequency distance
+    weighs like a MACX loss of 0.1: shapes decide between close modes (the 28.5 Hz pair),
+    frequency between modes the outputs cannot tell apart.
+    """
+    if identified.n_modes == 0:
+        return []
+    macx = macx_matrix(identified.shapes, truth.shapes)
+    distance = np.abs(identified.frequencies[:, None] / truth.frequencies[None, :] - 1)
+    rows, cols = scipy.optimize.linear_sum_assignment((1 - macx) + 10 * distance)
+    partner = dict(zip(rows.tolist(), cols.tolist(), strict=True))
+    matches = []
+    for k in range(identified.n_modes):
+        j = partner.get(k)
+        spurious = (j is None or macx[k, j] < MIN_PARTNER_MACX
+                    or distance[k, j] > MAX_PARTNER_DISTANCE)
+        if spurious:
+            j = int(np.argmin(distance[k]))
+        matches.append(ModeMatch(
+            k, j, 100 * (identified.frequencies[k] / truth.frequencies[j] - 1),
+            100 * (identified.damping_ratios[k] / truth.damping_ratios[j] - 1),
+            float(macx[k, j]), spurious))
+    return matches
+
+
+def _max_abs(values) -> float:
+    """Largest magnitude (nan when there is nothing to compare)."""
+    values = [abs(v) for v in values]
+    return float(max(values)) if values else math.nan
+
+
+# -- one identification ---------------------------------------------------------------------
+@dataclass
+class Run:
+    """One identification of a workload with everything the report needs."""
+
+    name: str
+    measurement: Measurement
+    truth: Truth
+    settings: IdentificationSettings
+    repeats: int = 1
+    result: IdentificationResult = field(init=False)
+    time_s: float = field(init=False)
+    truth_modes: ModalTable = field(init=False)
+    matches: list[ModeMatch] = field(init=False)
+    order_note: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.time_s = math.inf
+        self.order_note = "automatic"
+        for _ in range(self.repeats):  # best of the repeats: other processes share the cores
+            start = time.perf_counter()
+            self._identify()
+            self.time_s = min(self.time_s, time.perf_counter() - start)
+        names = self.result.modal.output_names
+        modal = self.truth.modal
+        columns = [modal.output_names.index(n) for n in names]
+        self.truth_modes = in_band(ModalTable(modal.frequencies, modal.damping_ratios,
+                                              modal.shapes[:, columns], names))
+        self.matches = match_modes(self.result.modal, self.truth_modes)
+
+    def _identify(self) -> None:
+        try:
+            self.result = identify(self.measurement, self.settings)
+        except ValueError as error:
+            if self.settings.order != "auto" or "no model order stabilises" not in str(error):
+                raise
+            # nothing stabilises: take the order the paper read from its diagram
+            self.order_note = ("automatic choice failed: no order has a fully stable "
+                               "pole in the band; the paper's order is used")
+            self.settings = replace(self.settings, order=PAPER_ORDER[self.name.split(" ")[0]])
+            self.result = identify(self.measurement, self.settings)
+
+    def stable_flags(self) -> list[bool]:
+        """Whether each kept mode is confirmed by the next order of the diagram: fully
+        stable (frequency, damping, MACX) against one of its poles. The automatic rule
+        returns the reference order n' of the first plateau, whose poles are the ones the
+        next order confirms (:func:`fnsi.stabilisation.choose_order`)."""
+        diagram = self.result.stabilisation
+        order = self.result.order
+        if diagram is None or order not in diagram.orders:
+            return [False] * self.result.modal.n_modes
+        j = diagram.orders.index(order)
+        if j + 1 == len(diagram.orders):
+            classes = diagram.poles[j].classes
+        else:
+            classes = classify_poles(diagram.poles[j].modes, diagram.poles[j + 1].modes,
+                                     diagram.tolerances)
+        frequencies = diagram.poles[j].modes.frequencies
+        return [any(abs(f - g) <= 1e-9 * f and c is PoleClass.STABLE
+                    for g, c in zip(frequencies, classes, strict=True))
+                for f in self.result.modal.frequencies]
+
+    def stabilised_text(self) -> str:
+        """Error maxima over the confirmed modes only (what a user would keep)."""
+        kept = [m for m, ok in zip(self.matches, self.stable_flags(), strict=True) if ok]
+        if not kept:
+            return (f"none of the {len(self.matches)} kept modes is confirmed (fully stable) "
+                    "by the next order of the diagram")
+        return (f"{len(kept)} of the {len(self.matches)} kept modes are confirmed (fully "
+                f"stable) by the next order of the diagram; over those only, max |err f| = "
+                f"{_max_abs(m.frequency_error_pct for m in kept):.3f} % and max |err zeta| = "
+                f"{_max_abs(m.damping_error_pct for m in kept):.2f} %")
+
+    @property
+    def max_frequency_error(self) -> float:
+        return _max_abs(m.frequency_error_pct for m in self.matches)
+
+    @property
+    def max_damping_error(self) -> float:
+        return _max_abs(m.damping_error_pct for m in self.matches)
+
+    def order_text(self) -> str:
+        s = self.settings
+        chosen = "automatic choice" if self.order_note == "automatic" else self.order_note
+        return (f"Settings: i = {s.block_rows}, {len(self.result.modal.output_names)} "
+                f"outputs, {len(self.result.coefficients)} basis functions, {s.line_set} "
+                f"lines, noise weighting {'on' if s.weighting else 'off'}. "
+                f"Order: **{self.result.order}** ({chosen}; paper: "
+                f"{PAPER_ORDER[self.name.split(' ')[0]]}); {self.result.modal.n_modes} modes kept")
+
+    def timings_text(self) -> str:
+        stages = ", ".join(f"{k} {v:.3f}" for k, v in self.result.timings.items())
+        best = f", best of {self.repeats} runs" if self.repeats > 1 else ""
+        return (f"identify() wall time {self.time_s:.3f} s{best} (stages of the last run: "
+                f"{stages} s)")
+
+
+def settings_for(outputs, block_rows: int, elements, driving_point: tuple[str, str], *,
+                 line_set: str = "all") -> IdentificationSettings:
+    """The identification settings shared by the workloads (automatic order).
+
+    The SVD is weighted by the output noise covariance estimated from the six kept
+    periods (``weighting=True``): with few outputs, the unweighted truncation mixes the
+    weakly excited modes with the noise (see the report). ``line_set="excited"`` keeps
+    the 540 harmonic lines averaged over the periods instead of all 3,240 lines of the
+    record (the other 2,700 carry only noise); it needs (m + s + l) i < 1,080.
+    """
+    return IdentificationSettings(
+        band=BAND, block_rows=block_rows, order="auto", max_order=60,
+        outputs=None if outputs is None else tuple(outputs), discard_periods=DISCARD,
+        elements=tuple(elements), driving_points=(driving_point,), weighting=True,
+        line_set=line_set)
+
+
+# -- report helpers -----------------------------------------------------------------------
+def _fmt(value: float, digits: int = 2) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:+.{digits}f}" if digits else f"{value:.0f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _save(name: str, png: bytes) -> str:
+    (RESULTS / name).write_bytes(png)
+    return f"![{name}]({name})"
+
+
+def _frf_background(run: Run) -> tuple[np.ndarray, np.ndarray]:
+    """Sum over outputs of the measured FRF magnitude (H1 on the excited lines)."""
+    data = run.measurement.select(outputs=run.settings.outputs)
+    spectra = output_spectra(data, BAND, discard_periods=DISCARD, line_set="excited")
+    H = spectra.outputs[0] / spectra.inputs[0, :, :1]
+    return spectra.frequencies, np.sum(np.abs(H), axis=1)
+
+
+def modal_rows(run: Run, paper: dict[int, tuple] | None) -> list[list[str]]:
+    """Table rows: every true mode in the band with its identified partner, then the
+    identified modes without a credible partner (errors against the nearest true mode)."""
+    by_truth = {m.truth: m for m in run.matches if not m.spurious}
+    table, t = run.result.modal, run.truth_modes
+    stable = run.stable_flags()
+
+    def identified(m: ModeMatch) -> list[str]:
+        flag = "" if stable[m.identified] else " (not confirmed)"
+        return [f"{table.frequencies[m.identified]:.3f}{flag}",
+                f"{100 * table.damping_ratios[m.identified]:.2f}",
+                _fmt(m.frequency_error_pct, 3), _fmt(m.damping_error_pct, 2),
+                f"{m.macx:.3f}"]
+
+    rows = []
+    for j in range(t.n_modes):
+        p = (paper or {}).get(j + 1)
+        paper_cells = [_fmt(p[0]), _fmt(p[1])] if p else ["", ""]
+        ours = identified(by_truth[j]) if j in by_truth else ["not identified", "", "", "",
+                                                               ""]
+        rows.append([str(j + 1), f"{t.frequencies[j]:.3f}",
+                     f"{100 * t.damping_ratios[j]:.2f}", *ours, *paper_cells])
+    for m in run.matches:
+        if m.spurious:
+            rows.append([f"spurious (nearest: {m.truth + 1})", "", "", *identified(m), "",
+                         ""])
+    return rows
+
+
+MODAL_HEADER = ["true mode", "true f [Hz]", "true zeta [%]", "ident. f [Hz]",
+                "ident. zeta [%]", "err f [%]", "err zeta [%]", "MACX",
+                "paper err f [%]", "paper err zeta [%]"]
+
+
+def coefficient_summary(run: Run, truth_mu: float) -> dict:
+    """Mean Re mu over the band, its error, log10(Re/Im) and the time (Table 5)."""
+    c = run.result.coefficients[0]
+    return {"mean_mu": c.mean_real, "mu_err_pct": 100 * abs(c.mean_real / truth_mu - 1),
+            "log10_re_im": c.log10_real_imag, "time_s": run.time_s}
+
+
+def stabilisation_figure(run: Run, name: str, title: str) -> str:
+    png = plot_stabilisation(run.result.stabilisation, frf=_frf_background(run),
+                             singular_values=run.result.singular_values[:60],
+                             order=run.result.order, title=title)
+    return _save(name, png)
+
+
+# -- evidence for the report ------------------------------------------------------------------
+def frf_evidence(run: Run) -> dict:
+    """Where the coefficient error comes from: the data or the identified model.
+
+    On the excited lines, mu(omega) is computed twice from the same measured spectra
+    (Eq. 16-17 at the driving point NC2w_Z): once with the true FRF of our structural
+    model, once with the identified one. Also the median error of the identified
+    driving-point FRF against the true one.
+    """
+    structure = smallsat_model()
+    settings = replace(run.result.settings, line_set="excited")
+    data = run.measurement.select(settings.inputs, settings.outputs)
+    spectra, _, _ = extended_spectra(data, settings)
+    f, U, G = spectra.frequencies, spectra.inputs[0, :, 0], spectra.inputs[0, :, 1]
+    dof, ref = (structure.dof_index(n) for n in NC2)
+    w = 2 * np.pi * f[:, None, None]
+    H = np.linalg.solve(-w**2 * structure.M + 1j * w * structure.C + structure.K,
+                        np.eye(structure.M.shape[0])[:, [dof]])[:, :, 0]
+    y = spectra.outputs[0, :, data.output_index(NC2[0])]
+    a, b = (H[:, dof] - H[:, ref]) * G, H[:, dof] * U - y
+    He = run.result.model.frequency_response(f)[:, data.output_index(NC2[0]), 0]
+    return {"mu_true_frf": float(np.mean((b / a).real)),
+            "mu_true_frf_ls": float((np.vdot(a, b) / np.vdot(a, a)).real),
+            "frf_error_pct": float(100 * np.median(np.abs(He / H[:, dof] - 1))),
+            "frf_error_max_pct": float(100 * np.max(np.abs(He / H[:, dof] - 1)))}
+
+
+def best_curve_error(element: NonlinearElement, truth: NonlinearElement,
+                     span: tuple[float, float]) -> float:
+    """RMS error [% of peak] of the best least-squares spline ordinates for the true
+    force over the measured range: what the knots allow at best."""
+    x = np.linspace(*span, 2001)
+    basis, force = element.basis(x), truth.force(x)
+    ordinates = np.linalg.lstsq(basis, force, rcond=None)[0]
+    return float(100 * np.sqrt(np.mean((basis @ ordinates - force) ** 2))
+                 / np.max(np.abs(force)))
+
+
+# -- workloads --------------------------------------------------------------------------------
+def clearance_nc2() -> NonlinearElement:
+    """The NC2-Z stop as identified in IV.A: known clearance, unknown coefficient."""
+    return NonlinearElement("clearance", *NC2, gap=AXIAL_GAP)
+
+
+def single_workload(name: str, measurement: Measurement, truth: Truth, outputs,
+                    block_rows: int, line_set: str, paper_modes: dict,
+                    figures: dict[str, str]) -> tuple[Run, list[str], dict]:
+    """single-39 or single-3: clearance basis at NC2-Z with the exact gap (IV.A)."""
+    run = Run(name, measurement, truth,
+              settings_for(outputs, block_rows, [clearance_nc2()], ("F_NC2w_Z", "NC2w_Z"),
+                           line_set=line_set), repeats=TIMING_REPEATS)
+    coef = coefficient_summary(run, AXIAL_ADDED)
+    p = PAPER_TABLE_5[name]
+    c = run.result.coefficients[0]
+    evidence = frf_evidence(run)
+    lines = [
+        f"{run.order_text()}. {run.timings_text()}.",
+        "",
+        _table(MODAL_HEADER, modal_rows(run, paper_modes)),
+        "",
+        f"{run.stabilised_text()}.",
+        "",
+        _table(["", "mean Re mu", "error [%]", "log10(Re/Im)", "time [s]"], [
+            ["paper", f"{p[0]:.2f}", f"{p[1]:.2f}", f"{p[2]:.2f}", f"{p[3]:.1f}"],
+            ["ours", f"{coef['mean_mu']:.3f}", f"{coef['mu_err_pct']:.3f}",
+             f"{coef['log10_re_im']:.2f}", f"{coef['time_s']:.2f}"],
+            ["truth", f"{AXIAL_ADDED:.2f}", "0", "inf", ""]]),
+        "",
+        f"mu(omega) flatness: std(Re mu) / mean = {c.variation:.4f}; "
+        f"band average of Im mu = {np.mean(c.values.imag):.3f}.",
+        "",
+        f"Where the coefficient error comes from: from the same measured spectra (excited "
+        f"lines), Eq. 16-17 at the driving point with the *true* FRF of our model give a "
+        f"band-mean mu of {evidence['mu_true_frf']:.3f} (least squares over the lines: "
+        f"{evidence['mu_true_frf_ls']:.3f}; the band mean of a per-line ratio is sensitive to "
+        f"the noise at anti-resonances), while the identified model's "
+        f"driving-point FRF differs from the true one by {evidence['frf_error_pct']:.2f} % "
+        f"(median over the band; max {evidence['frf_error_max_pct']:.2f} %).",
+        "",
+        stabilisation_figure(run, figures["stabilisation"],
+                             f"{name}: stabilisation diagram (paper Fig. "
+                             f"{figures['stabilisation_paper']})"),
+        _save(figures["coefficient"], plot_coefficients(
+            c.frequencies, c.values[:, None], [c.name], truth=[AXIAL_ADDED],
+            unit="force unit / length unit",
+            title=f"{name}: NC2-Z coefficient mu(omega) "
+                  f"(paper Fig. {figures['coefficient_paper']})")),
+    ]
+    summary = {"max_freq_err_pct": run.max_frequency_error,
+               "max_damp_err_pct": run.max_damping_error,
+               "mu_err_pct": coef["mu_err_pct"], "log10_re_im": coef["log10_re_im"],
+               "time_s": run.time_s}
+    return run, lines, summary
+
+
+def settings_comparison(measurement: Measurement, truth: Truth) -> list[str]:
+    """What the weighting and the line set change for single-39 and single-3 (the
+    settings the benchmark does not use, for comparison)."""
+    cases = [("single-39", None, 50, "all", False), ("single-3", THREE, 100, "excited", False),
+             ("single-3", THREE, 100, "all", True), ("single-3", THREE, 100, "all", False)]
+    rows = []
+    for name, outputs, block_rows, line_set, weighting in cases:
+        settings = replace(settings_for(outputs, block_rows, [clearance_nc2()],
+                                        ("F_NC2w_Z", "NC2w_Z"), line_set=line_set),
+                           weighting=weighting)
+        run = Run(name, measurement, truth, settings)
+        coef = coefficient_summary(run, AXIAL_ADDED)
+        rows.append([name, line_set, "on" if weighting else "off", str(run.result.order),
+                     f"{run.max_frequency_error:.3f}", f"{run.max_damping_error:.2f}",
+                     f"{coef['mu_err_pct']:.3f}", f"{coef['log10_re_im']:.2f}",
+                     f"{run.time_s:.2f}"])
+    return [
+        "#### Other settings tried (not used above)",
+        "",
+        _table(["workload", "lines", "weighting", "order", "max err f [%]",
+                "max err zeta [%]", "mu err [%]", "log10(Re/Im)", "time [s]"], rows),
+    ]
+
+
+def macx_figure(run: Run, name: str) -> str:
+    macx = macx_matrix(run.result.modal.shapes, run.truth_modes.shapes)
+    return _save(name, plot_macx(macx, run.result.modal.frequencies,
+                                 run.truth_modes.frequencies, label_b="true",
+                                 title=f"{run.name}: MACX identified vs true (paper Fig. 6)"))
+
+
+def paper_knots(x_range: tuple[float, float], gap: float = AXIAL_GAP) -> tuple[float, ...]:
+    """The paper's uneven knots (IV.B): 13 intervals, 10 of them within +-10 % of the gaps.
+
+    Five equal intervals in [0.9 g, 1.1 g] on each side, one interval inside the clearance
+    (containing the equilibrium) and one from each neighbourhood to the measured extreme.
+    """
+    low, high = x_range
+    if not (low < -1.1 * gap and high > 1.1 * gap):
+        raise ValueError(f"the measured range {x_range} does not pass both clearances +-{gap} "
+                         "by 10 %: the paper's knots need contact on both sides")
+    side = np.linspace(0.9 * gap, 1.1 * gap, 6)
+    return (low, *(-side[::-1]), *side, high)
+
+
+def measured_range(measurement: Measurement, dof: str, ref: str) -> tuple[float, float]:
+    """Range of the period-averaged relative displacement the identification sees."""
+    periods = measurement.periods - DISCARD
+    y = measurement.y[:, DISCARD * measurement.period_length:]
+    x = y[..., measurement.output_index(dof)] - y[..., measurement.output_index(ref)]
+    x = x.reshape(x.shape[0], periods, -1).mean(axis=1)
+    return float(x.min()), float(x.max())
+
+
+def curve_of(run: Run, index: int) -> StiffnessCurve:
+    """The identified stiffness curve of element ``index`` (ValueError if unidentifiable)."""
+    element = run.result.settings.elements[index]
+    for curve in run.result.stiffness:
+        if curve.element.dof == element.dof and curve.element.ref == element.ref:
+            return curve
+    raise ValueError(f"{element.name}: no stiffness curve (coefficients not identifiable)")
+
+
+def spline_element(measurement: Measurement, knots_kind: str) -> NonlinearElement:
+    """Spline at NC2-Z with the paper's knots or 13 automatic uniform intervals."""
+    if knots_kind == "paper":
+        return NonlinearElement("spline", *NC2,
+                                knots=paper_knots(measured_range(measurement, *NC2)))
+    return NonlinearElement("spline", *NC2, intervals=13)
+
+
+def spline_block_rows(measurement: Measurement, element: NonlinearElement) -> int:
+    """Block rows of spline-3: the largest i with (m + s + l) i <= N, N the harmonic lines.
+
+    With periodic data the signal lives on the N = 540 harmonic lines (2 N real columns).
+    The paper's i = 100 makes E_i alone 1,500 rows for 15 extended inputs, more than the
+    1,080 signal columns, so eliminating E_i (Eq. 14) removes the signal; this rule lets
+    [E_i; Y_i] use at most half of them (i = 30 here). The report shows all i.
+    """
+    lines = band_lines(measurement.period_length, measurement.fs, BAND).size
+    return lines // (measurement.n_inputs + element.n_basis + len(THREE))
+
+
+def linear_mimicry(measurement: Measurement, element: NonlinearElement) -> float:
+    """RMS residual [%] of the best imitation of a linear spring (g = x) by the spline
+    basis, over the measured relative displacement: near 0 means the spline cannot be told
+    apart from the linear stiffness of the connection (part of the underlying structure)."""
+    periods = measurement.periods - DISCARD
+    y = measurement.y[:, DISCARD * measurement.period_length:]
+    x = y[..., measurement.output_index(NC2[0])] - y[..., measurement.output_index(NC2[1])]
+    x = x.reshape(x.shape[0], periods, -1).mean(axis=1).ravel()
+    basis = element.resolve(x).basis(x)
+    fit = basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
+    return float(100 * np.sqrt(np.mean((fit - x) ** 2) / np.mean(x**2)))
+
+
+def spline_workload(measurement: Measurement, truth: Truth, knots_kind: str,
+                    ) -> tuple[Run, list[str], float]:
+    """spline-3: cubic splines at NC2-Z, paper knots or automatic knots (IV.B)."""
+    element = spline_element(measurement, knots_kind)
+    run = Run(f"spline-3 ({knots_kind} knots)", measurement, truth,
+              settings_for(THREE, spline_block_rows(measurement, element), [element],
+                           ("F_NC2w_Z", "NC2w_Z"), line_set="excited"))
+    true_element = next(e for e in truth.elements if (e.dof, e.ref) == NC2)
+    curve = curve_of(run, 0)
+    error = curve_error_percent(curve, true_element)
+    tag = knots_kind.replace(" ", "_")
+    resolved = run.result.settings.elements[0]
+    close = stiffness_curve(curve.element, np.asarray(curve.element.coefficients),
+                            (1.0, curve.x[-1]))
+    lines = [
+        f"#### {knots_kind} knots",
+        "",
+        f"Knots: {', '.join(f'{q:.3f}' for q in resolved.knots)} (length units). "
+        f"{run.order_text()}. {run.timings_text()}.",
+        "",
+        _table(MODAL_HEADER, modal_rows(run, PAPER_TABLE_7)),
+        "",
+        f"Stiffness-curve RMS error over the measured range [{curve.x[0]:.3f}, "
+        f"{curve.x[-1]:.3f}]: **{error:.2f} %** of its peak (target <= 3 %). The best "
+        f"least-squares ordinates for these knots would give "
+        f"{best_curve_error(resolved, true_element, (curve.x[0], curve.x[-1])):.2f} %: the "
+        f"knots can represent the stop; the gap is the identified ordinates. A linear "
+        f"spring g = x is imitated by this spline basis to within "
+        f"{linear_mimicry(measurement, element):.2f} % RMS over the measured displacement "
+        f"(the smaller, the less the spline can be told apart from the connection's "
+        f"linear stiffness, which belongs to the underlying linear structure).",
+        "",
+        stabilisation_figure(run, f"fig09_stabilisation_{tag}.png",
+                             f"spline-3, {knots_kind} knots: stabilisation (paper Fig. 9)"),
+        _save(f"fig10a_curve_{tag}.png", plot_stiffness(
+            [curve], truths=[true_element],
+            title=f"spline-3, {knots_kind} knots: NC2-Z restoring force (paper Fig. 10a)")),
+        _save(f"fig10b_closeup_{tag}.png", plot_stiffness(
+            [close], truths=[true_element],
+            title=f"spline-3, {knots_kind} knots: positive discontinuity (paper Fig. 10b)")),
+    ]
+    return run, lines, error
+
+
+def spline_diagnostic(measurement: Measurement, truth: Truth) -> list[str]:
+    """Sensitivity of spline-3 to the block rows (the paper's i = 100 needs all lines), and
+    the same splines from all 39 outputs (single-39 settings)."""
+    true_element = next(e for e in truth.elements if (e.dof, e.ref) == NC2)
+    cases = [(THREE, i, "excited") for i in (20, 30, 40, 50)]
+    cases += [(THREE, 100, "all"), (None, 50, "all")]
+    rows = []
+    for outputs, block_rows, line_set in cases:
+        for kind in ("paper", "automatic"):
+            run = Run(f"spline-3 diagnostic ({kind} knots)", measurement, truth,
+                      settings_for(outputs, block_rows, [spline_element(measurement, kind)],
+                                   ("F_NC2w_Z", "NC2w_Z"), line_set=line_set))
+            rows.append([kind, str(len(run.result.modal.output_names)), str(block_rows),
+                         line_set, f"{run.result.order}",
+                         f"{curve_error_percent(curve_of(run, 0), true_element):.2f}",
+                         f"{run.max_frequency_error:.3f}", f"{run.max_damping_error:.2f}",
+                         f"{run.time_s:.2f}"])
+    return [
+        "#### Sensitivity to the block rows, and all 39 outputs",
+        "",
+        _table(["knots", "outputs", "i", "lines", "order", "curve RMS error [%]",
+                "max err f [%]", "max err zeta [%]", "time [s]"], rows),
+    ]
+
+
+#: multi-18 outputs: both sides of each NC in its stop's lateral axis and in Z, then the
+#: wheel along the excitation direction and axially.
+LATERAL = {"NC1": "X", "NC2": "X", "NC3": "Y", "NC4": "Y"}
+W_DIAGONAL = "W_XY"
+
+
+def multi_outputs() -> tuple[str, ...]:
+    pairs = [(f"{nc}w_{a}", f"{nc}b_{a}") for nc, a in LATERAL.items()]
+    pairs += [(f"{nc}w_Z", f"{nc}b_Z") for nc in LATERAL]
+    return (*(n for p in pairs for n in p), W_DIAGONAL, "W_Z")
+
+
+def with_diagonal(measurement: Measurement, truth: Truth) -> tuple[Measurement, Truth]:
+    """Add the wheel displacement along the excitation direction, (W_X + W_Y) / sqrt 2,
+    as an output channel (measured and true shapes), the driving point of the force."""
+    ix, iy = measurement.output_index("W_X"), measurement.output_index("W_Y")
+    diagonal = (measurement.y[..., ix] + measurement.y[..., iy]) / np.sqrt(2.0)
+    data = replace(measurement, y=np.concatenate([measurement.y, diagonal[..., None]], axis=2),
+                   output_names=(*measurement.output_names, W_DIAGONAL))
+    modal = truth.modal
+    jx, jy = modal.output_names.index("W_X"), modal.output_names.index("W_Y")
+    shapes = np.concatenate(
+        [modal.shapes, ((modal.shapes[:, jx] + modal.shapes[:, jy]) / np.sqrt(2.0))[:, None]],
+        axis=1)
+    return data, replace(truth, modal=replace(modal, shapes=shapes,
+                                              output_names=(*modal.output_names, W_DIAGONAL)))
+
+
+def multi_workload(measurement: Measurement, truth: Truth) -> tuple[Run, list[str], dict]:
+    """multi-18: eight splines with automatic knots, 9 intervals each (IV.C)."""
+    data, truth = with_diagonal(measurement, truth)
+    elements = [NonlinearElement("spline", e.dof, e.ref, intervals=9) for e in truth.elements]
+    run = Run("multi-18", data, truth,
+              settings_for(multi_outputs(), 50, elements, (data.input_names[0], W_DIAGONAL)))
+    curves, errors, rows = [], [], []
+    for k, element in enumerate(truth.elements):
+        curve = curve_of(run, k)
+        curves.append(curve)
+        errors.append(curve_error_percent(curve, element))
+        rows.append([f"spline at the stop {element.dof}-{element.ref}",
+                     f"[{curve.x[0]:.2f}, {curve.x[-1]:.2f}]",
+                     f"{errors[-1]:.2f}"])
+    exceedances = [
+        [key.replace("_", "-"), f"{TABLE_3[key]:,}", f"{TABLE_8[key]:,}",
+         f"{truth.exceedances[next(e.name for e in truth.elements if _stop_key(e) == key)]:,}"]
+        for key in TABLE_8]
+    lines = [
+        "Table 8 analogue: clearance exceedances (samples in contact over the 6 kept periods).",
+        "",
+        _table(["stop", "paper Table 3 (single)", "paper Table 8 (multi)", "ours (multi)"],
+               exceedances),
+        "",
+        f"{run.order_text()}. {run.timings_text()}.",
+        "",
+        _table(MODAL_HEADER, modal_rows(run, PAPER_TABLE_9)),
+        "",
+        f"{run.stabilised_text()}.",
+        "",
+        "Stiffness curves (automatic knots, 9 intervals, no knowledge of the clearances):",
+        "",
+        _table(["element", "measured range", "RMS error [% of peak]"], rows),
+        "",
+        stabilisation_figure(run, "fig11_stabilisation_multi18.png",
+                             "multi-18: stabilisation diagram (paper Fig. 11)"),
+        _save("fig12_curves_multi18.png", plot_stiffness(
+            curves, truths=list(truth.elements),
+            title="multi-18: WEMS restoring forces (paper Fig. 12 a-f)")),
+    ]
+    lines += ["", *multi_evidence(run, data, truth)]
+    summary = {"max_freq_err_pct": run.max_frequency_error,
+               "max_damp_err_pct": run.max_damping_error,
+               "max_curve_rms_pct": float(max(errors)), "time_s": run.time_s}
+    return run, lines, summary
+
+
+def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
+    """Why the spline configuration of IV.C is hard here: a dimension count, and the same
+    data identified with the eight stops as known-form clearance bases (true gaps)."""
+    harmonic = band_lines(data.period_length, data.fs, BAND).size
+    q = data.n_inputs + sum(e.n_basis for e in run.result.settings.elements)
+    rows = q * run.settings.block_rows
+    known = [replace(e, coefficients=None) for e in truth.elements]
+    diagnostic = Run("multi-18 clearance diagnostic", data, truth,
+                     settings_for(multi_outputs(), 50, known, run.settings.driving_points[0]))
+    errors = [curve_error_percent(curve_of(diagnostic, k), e)
+              for k, e in enumerate(truth.elements)]
+    return [
+        f"Dimension count: the excitation is periodic, so the signal lives on the "
+        f"{harmonic} harmonic lines of the band, i.e. {2 * harmonic} real columns of the "
+        f"data matrices (the other lines of the 6-period record carry noise only). With "
+        f"{q} extended inputs and i = {run.settings.block_rows}, E_i has {rows} rows: "
+        + ("more than the signal columns, so the projection of Eq. 14 removes nearly all "
+           "the signal from Y_i and what is left is mostly noise." if rows >= 2 * harmonic
+           else "fewer than the signal columns."),
+        "",
+        f"Diagnostic (not the paper's setting): the same data with the eight stops as "
+        f"clearance bases with their true gaps (9 extended inputs): "
+        f"{diagnostic.order_text()}; max frequency error "
+        f"{diagnostic.max_frequency_error:.2f} %, max damping error "
+        f"{diagnostic.max_damping_error:.2f} %, curve errors "
+        f"{', '.join(f'{e:.1f}' for e in errors)} % of peak; {diagnostic.timings_text()}.",
+        "",
+        _table(MODAL_HEADER, modal_rows(diagnostic, PAPER_TABLE_9)),
+    ]
+
+
+def _stop_key(element: NonlinearElement) -> str:
+    """Table 3 / 8 key (``NC2_Z``) of a WEMS stop element."""
+    node, axis = element.dof.split("_")
+    return f"{node[:-1]}_{axis}"
+
+
+# -- report -----------------------------------------------------------------------------------
+JSON_KEYS = {
+    "single39": ("max_freq_err_pct", "max_damp_err_pct", "mu_err_pct", "log10_re_im", "time_s"),
+    "single3": ("max_freq_err_pct", "max_damp_err_pct", "mu_err_pct", "log10_re_im", "time_s"),
+    "spline3": ("curve_rms_pct_paper_knots", "curve_rms_pct_auto_knots"),
+    "multi18": ("max_freq_err_pct", "max_damp_err_pct", "max_curve_rms_pct", "time_s"),
+}
+"""Keys of the last output line (None when a workload failed)."""
+
+TARGETS = {
+    "single39": {"max_freq_err_pct": 0.2, "max_damp_err_pct": 3.0, "mu_err_pct": 0.05,
+                 "log10_re_im": -3.0, "time_s": 2.0},
+    "single3": {"max_freq_err_pct": 0.2, "mu_err_pct": 0.1, "time_s": 0.2},
+    "spline3": {"curve_rms_pct_paper_knots": 3.0, "curve_rms_pct_auto_knots": 3.0},
+    "multi18": {"max_freq_err_pct": 0.5, "max_damp_err_pct": 3.0, "max_curve_rms_pct": 5.0,
+                "time_s": 20.0},
+}
+"""Acceptance targets (issue 5): upper bounds; a negative bound -b means ">= b"."""
+
+
+LIMITS = [
+    "## What limits the results (measured evidence in each section)",
+    "",
+    "- **Coefficient error (single-39, single-3).** Two parts, both measured in each "
+    "section's *Where the coefficient error comes from* line: (1) a floor set by the noise "
+    "of this realisation: even with the true FRF of our model, the same measured spectra "
+    "give the stated band mean (and least-squares value), not exactly 100; (2) the "
+    "identified FRF, which differs from the true one by the stated fraction: the kept "
+    "order describes the strongly excited modes, and the weakly excited ones that "
+    "also shape the driving-point FRF are below the noise in the singular values. "
+    "Tried: noise weighting on and off, all or excited lines (single-3 table), orders "
+    "10-60 by hand during development (none removed the bias; higher orders add spurious "
+    "poles), and an output-error refinement of the poles (it lowered the residual but "
+    "not the bias, so it is not in the library).",
+    "- **Spurious poles at the automatic order (single-39).** `identify()` returns every "
+    "physical pole of the chosen order; the automatic rule picks the order from the count "
+    "of fully stable poles but keeps the unconfirmed ones too. The line under each modal "
+    "table gives the maxima over the confirmed poles only.",
+    "- **Splines (spline-3, multi-18).** Two limits, both measured: (1) block rows: with "
+    "periodic excitation the signal lives on the N harmonic lines of the band (2 N real "
+    "columns); E_i has (1 + s) i rows, and when that approaches 2 N the elimination of "
+    "Eq. 14 removes the signal (the paper's i = 100 with 14 ordinates in spline-3: see "
+    "the sensitivity table; the dimension count of multi-18). (2) "
+    "identifiability: uniform automatic knots put several knots inside the clearance, and "
+    "the spline basis then imitates a linear spring (residual of the best imitation stated "
+    "per knot set), so spline ordinates and the linear stiffness of the connection trade "
+    "off against each other; the paper's knots leave one wide interval around the "
+    "equilibrium and do not. The representation itself is not the limit (best "
+    "least-squares ordinates stated per knot set).",
+    "- **multi-18.** Both spline limits at once (eight splines); the same data "
+    "with the eight stops as known-form clearance bases identify the first modes and the "
+    "curves (diagnostic table), which locates the failure in the spline configuration.",
+    "- **Time.** Stage timings are given per run; the decomposition (QR elimination, "
+    "noise weighting, SVD) dominates and scales with (lines x block rows x channels).",
+]
+"""Analysis of the misses; every number it refers to is measured in its section."""
+
+
+def acceptance_rows(summary: dict) -> list[list[str]]:
+    rows = []
+    for workload, targets in TARGETS.items():
+        for key, bound in targets.items():
+            value = summary[workload][key]
+            if value is None:
+                rows.append([workload, key, "failed", "", "**missed**"])
+                continue
+            ok = value >= -bound if bound < 0 else value <= bound
+            rows.append([workload, key, f"{value:.4g}",
+                         f">= {-bound:g}" if bound < 0 else f"<= {bound:g}",
+                         "met" if ok else "**missed**"])
+    return rows
+
+
+#: BLAS threads used when the caller does not set OPENBLAS_NUM_THREADS: on the shared
+#: 2-core machine, OpenBLAS threads contending with other processes made a 300 x 300 SVD
+#: take over a second (0.02 s single-threaded), so timings are taken single-threaded.
+BLAS_THREADS = "1"
+
+
+def main() -> None:
+    if "OPENBLAS_NUM_THREADS" not in os.environ:
+        # the thread count is read when numpy loads: run again with it set
+        os.environ["OPENBLAS_NUM_THREADS"] = BLAS_THREADS
+        os.execv(sys.executable, [sys.executable, *sys.argv])
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    single, single_truth, single_info = simulated("single")
+    multi, multi_truth, multi_info = simulated("multi")
+    print(f"data ready in {time.perf_counter() - start:.1f} s "
+          f"(single: {single_info}, multi: {multi_info})", flush=True)
+
+    def single39() -> tuple[list[str], dict]:
+        run, lines, summary = single_workload(
+            "single-39", single, single_truth, None, 50, "all", PAPER_TABLE_4,
+            {"stabilisation": "fig05_stabilisation_single39.png", "stabilisation_paper": "5",
+             "coefficient": "fig07a_mu_single39.png", "coefficient_paper": "7a"})
+        return [*lines, macx_figure(run, "fig06_macx_single39.png")], summary
+
+    def single3() -> tuple[list[str], dict]:
+        _, lines, summary = single_workload(
+            "single-3", single, single_truth, THREE, 100, "excited", PAPER_TABLE_6,
+            {"stabilisation": "fig08_stabilisation_single3.png", "stabilisation_paper": "8",
+             "coefficient": "fig07b_mu_single3.png", "coefficient_paper": "7b"})
+        return [*lines, "", *settings_comparison(single, single_truth)], summary
+
+    def spline3() -> tuple[list[str], dict]:
+        lines, errors = [], {}
+        for kind in ("paper", "automatic"):
+            _, part, errors[kind] = spline_workload(single, single_truth, kind)
+            lines += [*part, ""]
+        return ([*lines, *spline_diagnostic(single, single_truth)],
+                {"curve_rms_pct_paper_knots": errors["paper"],
+                 "curve_rms_pct_auto_knots": errors["automatic"]})
+
+    def multi18() -> tuple[list[str], dict]:
+        _, lines, summary = multi_workload(multi, multi_truth)
+        return lines, summary
+
+    summary: dict[str, dict] = {}
+    sections: list[str] = []
+    for key, title, workload in (
+            ("single39", "single-39 (paper IV.A, Tables 4-5, Figures 5-7a)", single39),
+            ("single3", "single-3 (paper IV.A, Tables 5-6, Figures 7b, 8)", single3),
+            ("spline3", "spline-3 (paper IV.B, Table 7, Figures 9-10)", spline3),
+            ("multi18", "multi-18 (paper IV.C, Tables 8-9, Figures 11-12)", multi18)):
+        try:
+            lines, summary[key] = workload()
+        except Exception as error:  # report the failure, keep the other workloads
+            lines = [f"**Failed**: {type(error).__name__}: {error}"]
+            summary[key] = dict.fromkeys(JSON_KEYS[key])
+        sections += [f"## {title}", "", *lines, ""]
+        print(key, summary[key], flush=True)
+
+    write_report(sections, summary, single_info, multi_info, single_truth)
+    print(json.dumps(summary))
+
+
+def write_report(sections: list[str], summary: dict, single_info: dict, multi_info: dict,
+                 single_truth: Truth) -> None:
+    header = [
+        "# Paper reproduction: FNSI on the SmallSat model (Section IV)",
+        "",
+        "Generated by `make bench-paper` (`benchmarks/paper.py`). Every number is measured "
+        "by that script on our reduced SmallSat model (`fnsi/smallsat.py`), except the "
+        "columns labelled *paper*, quoted from the paper's tables. Errors are relative: "
+        "100 (identified / true - 1). Modes are paired with the true modes of our model "
+        "(in the 5-50 Hz band, numbered by frequency) by MACX and frequency; our model's "
+        "modes are not the paper's FE modes, so the paper columns are placed by mode number "
+        "only as an indication.",
+        "",
+        f"Data: 8 periods x 30,000 samples at 2.5 kHz, 2 discarded, 0.5 % output noise; "
+        f"simulation {single_info['simulation_s']:.1f} s (single), "
+        f"{multi_info['simulation_s']:.1f} s (multi), "
+        f"{'read from the cache' if single_info['cached'] else 'simulated in this run'} "
+        f"(keys {single_info['key']}, {multi_info['key']}). NC2-Z exceedances in the single "
+        f"test: {single_truth.exceedances['clearance NC2w_Z-NC2b_Z']:,} (paper Table 3: "
+        f"{TABLE_3['NC2_Z']:,}); other stops: "
+        f"{sum(v for k, v in single_truth.exceedances.items() if 'NC2w_Z' not in k)}.",
+        "",
+        f"Timings: wall time of `identify()` on the shared 2-core machine with "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'default')}.",
+        "",
+        "## Acceptance",
+        "",
+        _table(["workload", "quantity", "ours", "target", ""], acceptance_rows(summary)),
+        "",
+        "Modal maxima run over every mode the automatic order keeps (all physical poles of "
+        "that order in the band, as `identify()` returns them), spurious ones included; "
+        "each section also gives the maxima over the poles that the next order of the "
+        "stabilisation diagram confirms (marked *not confirmed* otherwise).",
+        "",
+        *LIMITS,
+        "",
+    ]
+    (RESULTS / "paper.md").write_text("\n".join(header + sections) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
