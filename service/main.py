@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -16,10 +17,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--log-level", default="info", help="uvicorn log level (default info)")
     args = parser.parse_args(argv)
 
+    from service.settings import get_settings
+
+    # Embedded job processes inherit this: one BLAS pool per job process, sized so
+    # concurrent jobs share the cores instead of oversubscribing them.
+    workers = get_settings().embedded_workers
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // workers)))
+
     import uvicorn
 
     from service.app import create_app
-    from service.settings import get_settings
 
     app = create_app()
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
