@@ -76,6 +76,10 @@ def _http_detail(exc: StarletteHTTPException, request: Request) -> str:
         return f"no route {request.url.path}; see /docs for the routes of this API"
     if exc.status_code == 405:
         return f"{request.method} is not allowed on {request.url.path}; see /docs"
+    if exc.status_code == 400 and str(exc.detail).startswith("Part exceeded maximum size"):
+        # Starlette's form limit, on the upload's only non-file field
+        return (f"the form field `meta` is too large ({exc.detail}, FNSI_MAX_META_BYTES); "
+                "send a shorter meta JSON")
     return str(exc.detail)
 
 

@@ -39,7 +39,11 @@ def check_dimensions(summary: dict, request: IdentificationRequest,
     n_extended = len(request.inputs or summary["inputs"]) + sum(
         NonlinearElement.from_json(e.model_dump(mode="json")).n_basis for e in request.elements)
     dimensions = (n_lines, summary["realisations"], n_extended, n_outputs, request.block_rows)
-    subspace.check_dimensions(*dimensions, request.max_order)
+    # as fnsi.identification: "auto" decomposes up to max_order capped at l (i - 1), so
+    # only an explicit order can be too large for the block rows
+    cap = n_outputs * (request.block_rows - 1)
+    order = min(request.max_order, cap) if request.order == "auto" else request.order
+    subspace.check_dimensions(*dimensions, order)
     need = subspace.memory_estimate(*dimensions)
     if need > memory_limit_mb * 2**20:
         raise ValueError(f"FNSI would need about {need / 2**20:.0f} MiB, above the limit of "

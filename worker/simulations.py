@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from service.schemas.simulations import StructuralModelSpec
 from worker.runner import JobContext, Progress
 
 
@@ -32,13 +33,8 @@ def _excitation(spec: dict[str, Any], fs: float):
 
 def _simulate_model(request: dict[str, Any], progress: Progress):
     from fnsi.acquisition import acquire
-    from fnsi.nonlinear import NonlinearElement
-    from fnsi.structure import StructuralModel
 
-    spec = request["model"]
-    model = StructuralModel(np.array(spec["M"]), np.array(spec["C"]), np.array(spec["K"]),
-                            tuple(spec["dof_names"]),
-                            tuple(NonlinearElement.from_json(e) for e in spec["elements"]))
+    model = StructuralModelSpec.model_validate(request["model"]).structural_model()
     return acquire(model, _excitation(request["excitation"], request["fs"]),
                    fs=request["fs"], fs_int=request["fs_int"], periods=request["periods"],
                    outputs=request["outputs"], quantity=request["quantity"],

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -15,6 +16,9 @@ from pydantic import (
     model_validator,
 )
 
+from fnsi.nonlinear import NonlinearElement
+from fnsi.spectra import check_band
+from fnsi.structure import StructuralModel
 from service.schemas.identifications import NonlinearElementSpec
 
 MAX_SAMPLES = 20_000_000
@@ -94,6 +98,20 @@ class StructuralModelSpec(BaseModel):
                              "simulated")
         return self
 
+    @model_validator(mode="after")
+    def _valid_for_library(self) -> StructuralModelSpec:
+        # The library owns the rules of a model (square finite matrices of one size, one
+        # unique name per DOF, elements on known DOFs); its message says what to change.
+        self.structural_model()
+        return self
+
+    def structural_model(self) -> StructuralModel:
+        """The library's model of this spec."""
+        return StructuralModel(
+            np.array(self.M, dtype=float), np.array(self.C, dtype=float),
+            np.array(self.K, dtype=float), tuple(self.dof_names),
+            tuple(NonlinearElement.from_json(e.model_dump(mode="json")) for e in self.elements))
+
 
 class InputSpec(BaseModel):
     """One excitation force along a direction of the DOFs."""
@@ -141,7 +159,8 @@ class ModelSimulation(BaseModel):
     fs_int: StrictFloat = Field(20000.0, gt=0, description="Integration rate [Hz], an integer "
                           "multiple of fs.")
     periods: StrictInt = Field(8, ge=1, le=1000, description="Periods simulated from rest.")
-    outputs: list[str] | None = Field(None, description="DOFs measured; default all.")
+    outputs: list[str] | None = Field(None, min_length=1,
+                                      description="DOFs measured; default all.")
     quantity: Literal["displacement", "velocity", "acceleration"] = Field(
         "displacement", description="What the outputs measure.")
     noise_percent: StrictFloat = Field(0.5, ge=0, le=100, description="Noise RMS in % of the "
@@ -160,6 +179,29 @@ class ModelSimulation(BaseModel):
         e = self.excitation
         _check_size(self.periods * e.samples_per_period * e.realisations, self.fs,
                     self.fs_int)
+        return self
+
+    @model_validator(mode="after")
+    def _runnable(self) -> ModelSimulation:
+        """What fnsi.acquisition would refuse only after generating the excitation."""
+        dofs = self.model.dof_names
+        outputs = self.outputs or dofs
+        named = [(f"excitation.inputs[{j}].direction", dof)
+                 for j, force in enumerate(self.excitation.inputs) for dof in force.direction]
+        for field, name in [*named, *(("outputs", n) for n in outputs)]:
+            if name not in dofs:
+                raise ValueError(f"{field}: the model has no DOF {name!r}; its DOFs are {dofs}")
+        if self.noise_reference is not None and self.noise_reference not in outputs:
+            raise ValueError(f"noise_reference: {self.noise_reference!r} is not measured; "
+                             f"outputs are {outputs}")
+        factor = round(self.fs_int / self.fs)
+        if factor < 1 or abs(factor * self.fs - self.fs_int) > 1e-9 * self.fs_int:
+            raise ValueError(f"fs_int={self.fs_int} Hz must be an integer multiple of "
+                             f"fs={self.fs} Hz")
+        try:
+            check_band(self.excitation.band, self.fs)
+        except ValueError as err:
+            raise ValueError(f"excitation.band: {err}") from None
         return self
 
 
