@@ -22,6 +22,7 @@ from service.routes import (
     identifications,
     jobs,
     simulations,
+    studies,
 )
 from service.settings import Settings, get_settings
 from service.store import Store
@@ -37,6 +38,8 @@ TAGS = [
     {"name": "batches", "description": "Many jobs in one request."},
     {"name": "jobs", "description": "Status, progress, results and cancellation of jobs."},
     {"name": "artefacts", "description": "Plots, JSON results and models of a job."},
+    {"name": "studies", "description": "Modelling studies: revisions judged on validation "
+     "data, their error history, and diagnoses of what a model lacks."},
 ]
 
 
@@ -106,7 +109,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(datasets.router, form_limits={"max_files": 1, "max_fields": 1,
                                     "max_part_size": settings.max_meta_bytes})
-    for module in (simulations, identifications, batches, jobs, artefacts):
+    for module in (simulations, identifications, batches, jobs, artefacts, studies):
         app.include_router(module.router)
     app.openapi = lambda: _openapi(app)
     return app

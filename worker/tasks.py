@@ -9,8 +9,11 @@ from service.store import Claim
 from worker.identifications import identify_job
 from worker.runner import Task, run_job
 from worker.simulations import simulate_job
+from worker.studies import create_study_job, diagnose_study_job, revise_study_job
 
-TASKS: dict[str, Task] = {"simulation": simulate_job, "identification": identify_job}
+TASKS: dict[str, Task] = {"simulation": simulate_job, "identification": identify_job,
+                          "study": create_study_job, "study_revision": revise_study_job,
+                          "study_diagnosis": diagnose_study_job}
 
 
 def execute(job_id: str, settings: dict[str, Any] | Settings,

@@ -15,6 +15,9 @@ class JobKind(StrEnum):
 
     SIMULATION = "simulation"
     IDENTIFICATION = "identification"
+    STUDY = "study"
+    STUDY_REVISION = "study_revision"
+    STUDY_DIAGNOSIS = "study_diagnosis"
 
 
 class Job(BaseModel):
@@ -35,7 +38,9 @@ class Job(BaseModel):
     request: dict[str, Any] = Field(description="The validated request, defaults filled in.")
     result: dict[str, Any] | None = Field(
         None, description="Outcome once succeeded: {\"dataset_id\": ...} for a simulation, "
-        "the identification result for an identification.")
+        "the identification result for an identification; for a study or study_revision "
+        "the revision number and error history, for a study_diagnosis the ranked "
+        "candidates.")
     error: str | None = Field(None, description="Why the job failed, and what to change.")
 
     @classmethod

@@ -1,0 +1,363 @@
+"""The ``fnsi`` command line: simulate, inspect, identify and run modelling studies
+without the service.
+
+It calls the same library functions as the service's workers and writes the same
+artefacts (``result.json``, ``model.npz`` and the PNG figures) into a folder.
+
+Examples
+--------
+::
+
+    fnsi simulate single --periods 4 --samples-per-period 5000 -o single.npz
+    fnsi info single.npz
+    fnsi identify single.npz --outputs NC2w_Z,NC2b_Z,W_Z --band 5 50 --block-rows 100 \\
+        --element '{"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5}' \\
+        -o single-result
+    fnsi study create single.npz single-validation.npz --outputs NC2w_Z,NC2b_Z,W_Z \\
+        --band 5 50 --block-rows 100 -o nc2-study
+    fnsi study diagnose nc2-study            # ranked candidates, with --add JSON for each
+    fnsi study revise nc2-study --add '{"kind": "clearance", "dof": "NC2w_Z", ...}'
+    fnsi study show nc2-study
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def _progress(fraction: float, message: str) -> None:
+    print(f"\r[{fraction:6.1%}] {message:<60.60}", end="", file=sys.stderr, flush=True)
+
+
+def _channels(text: str | None) -> tuple[str, ...] | None:
+    return tuple(name.strip() for name in text.split(",") if name.strip()) if text else None
+
+
+def _elements(args: argparse.Namespace) -> tuple:
+    from fnsi.nonlinear import NonlinearElement
+
+    specs = [json.loads(text) for text in args.element]
+    if args.elements:
+        loaded = json.loads(Path(args.elements).read_text())
+        specs.extend(loaded if isinstance(loaded, list) else [loaded])
+    return tuple(NonlinearElement.from_json(spec) for spec in specs)
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from fnsi.smallsat import simulate_preset
+
+    measurement, truth = simulate_preset(
+        args.preset,
+        periods=args.periods,
+        samples_per_period=args.samples_per_period,
+        seed=args.seed,
+        noise_percent=args.noise_percent,
+        progress=_progress,
+    )
+    print(file=sys.stderr)
+    output = Path(args.output)
+    measurement.to_npz(output)
+    truth_path = output.with_suffix(".truth.json")
+    truth_path.write_text(json.dumps(truth.to_json(), indent=2))
+    print(f"wrote {output} and {truth_path}")
+    return 0
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from fnsi.measurement import Measurement
+
+    m = Measurement.from_npz(args.dataset)
+    print(json.dumps({"inputs": list(m.input_names), "outputs": list(m.output_names),
+                      "fs": m.fs, "quantity": m.quantity, "realisations": m.n_realisations,
+                      "samples": m.n_samples, "periods": m.periods,
+                      "period_length": m.period_length}, indent=2))
+    return 0
+
+
+def _order(text: str) -> int | str:
+    return text if text == "auto" else int(text)
+
+
+def _identification_settings(args: argparse.Namespace):
+    """IdentificationSettings from the options of :func:`_add_identification_options`."""
+    from fnsi.identification import IdentificationSettings
+
+    return IdentificationSettings(
+        inputs=_channels(args.inputs),
+        outputs=_channels(args.outputs),
+        band=(args.band[0], args.band[1]),
+        block_rows=args.block_rows,
+        order=_order(args.order),
+        max_order=args.max_order,
+        line_set=args.line_set,
+        discard_periods=args.discard_periods,
+        elements=_elements(args),
+        weighting=args.weighting,
+        driving_points=tuple(_pair(text) for text in args.driving_point),
+    )
+
+
+def _pair(text: str) -> tuple[str, str]:
+    names = _channels(text) or ()
+    if len(names) != 2:
+        raise ValueError(f"expected two comma-separated channel names, got {text!r}")
+    return names[0], names[1]
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from fnsi.identification import identify
+    from fnsi.measurement import Measurement
+    from fnsi.report import identification_report
+
+    measurement = Measurement.from_npz(args.dataset)
+    settings = _identification_settings(args)
+    result = identify(measurement, settings, progress=_progress)
+    report = identification_report(result, settings, measurement, progress=_progress)
+    print(file=sys.stderr)
+    folder = Path(args.output)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, content in report.artefacts.items():
+        (folder / name).write_bytes(content)
+    print(f"order {result.order}; artefacts in {folder}/")
+    for mode in report.document["modes"]:
+        print(f"  {mode['frequency_hz']:9.4f} Hz  damping {100 * mode['damping_ratio']:6.3f} %")
+    for c in report.document["coefficients"]:
+        quality = (f"mean Re {c['mean_real']:.6g}, log10(Re/Im) {c['log10_real_imag']:.2f}"
+                   if c.get("mean_real") is not None else c["reason"])
+        print(f"  {c['name']}: {quality}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``fnsi`` command (exposed for documentation and tests)."""
+    parser = argparse.ArgumentParser(
+        prog="fnsi",
+        description="Frequency-domain nonlinear subspace identification of structures.",
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    simulate = commands.add_parser(
+        "simulate", help="simulate a SmallSat preset and write a canonical NPZ dataset"
+    )
+    simulate.add_argument("preset", choices=["single", "multi"])
+    simulate.add_argument("-o", "--output", required=True, help="NPZ file to write")
+    simulate.add_argument("--periods", type=int, default=8)
+    simulate.add_argument("--samples-per-period", type=int, default=30_000)
+    simulate.add_argument("--seed", type=int, default=0)
+    simulate.add_argument("--noise-percent", type=float, default=0.5,
+                          help="output noise RMS in %% of the reference channel's RMS")
+    simulate.set_defaults(run=_cmd_simulate)
+
+    info = commands.add_parser("info", help="summarise a canonical NPZ dataset")
+    info.add_argument("dataset")
+    info.set_defaults(run=_cmd_info)
+
+    ident = commands.add_parser(
+        "identify", help="identify a dataset with FNSI and write result.json, model.npz, PNGs"
+    )
+    ident.add_argument("dataset", help="canonical NPZ dataset")
+    ident.add_argument("-o", "--output", required=True, help="folder for the artefacts")
+    _add_identification_options(ident)
+    ident.set_defaults(run=_cmd_identify)
+
+    _add_study_commands(commands)
+    return parser
+
+
+def _add_identification_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--inputs", help="comma-separated input names (default: all)")
+    parser.add_argument("--outputs", help="comma-separated output names (default: all)")
+    parser.add_argument("--band", nargs=2, type=float, default=(5.0, 50.0),
+                        metavar=("LOW_HZ", "HIGH_HZ"))
+    parser.add_argument("--block-rows", type=int, default=50, help="the paper's i")
+    parser.add_argument("--order", default="auto", help="model order n, or 'auto'")
+    parser.add_argument("--max-order", type=int, default=60)
+    parser.add_argument("--line-set", choices=["all", "excited"], default="all")
+    parser.add_argument("--discard-periods", type=int, default=1)
+    parser.add_argument("--weighting", action="store_true",
+                        help="weight by the noise covariance estimated between periods")
+    parser.add_argument("--element", action="append", default=[],
+                        help="a nonlinear element as JSON (repeatable)")
+    parser.add_argument("--elements", help="JSON file with a list of nonlinear elements")
+    parser.add_argument("--driving-point", action="append", default=[], metavar="INPUT,OUTPUT",
+                        help="output measured at the point and direction of an input "
+                        "(repeatable; default: found by name)")
+
+
+# -- fnsi study: modelling studies kept in a folder (fnsi.study.Study.save / load) ---------
+def _save_study(study, folder: Path, figures: dict[str, bytes]) -> None:
+    """Save ``study`` to ``folder`` with its new figures, replacing the folder only once
+    the new one is complete (a failure leaves the previous study intact); figures and
+    diagnoses of earlier revisions are kept."""
+    import shutil
+
+    folder = folder.resolve()
+    partial = folder.with_name(folder.name + ".partial")
+    previous = folder.with_name(folder.name + ".previous")
+    for stale in (partial, previous):
+        shutil.rmtree(stale, ignore_errors=True)
+    study.save(partial)
+    if folder.is_dir():
+        for old in folder.iterdir():
+            if not (partial / old.name).exists():
+                old.replace(partial / old.name)
+        folder.rename(previous)
+    partial.rename(folder)
+    shutil.rmtree(previous, ignore_errors=True)
+    for name, content in figures.items():
+        (folder / name).write_bytes(content)
+
+
+def _cmd_study_create(args: argparse.Namespace) -> int:
+    from fnsi.measurement import Measurement
+    from fnsi.study import Study
+    from fnsi.study_plots import study_figures
+
+    folder = Path(args.output)
+    if (folder / "study.json").exists():
+        raise ValueError(f"{folder} already holds a study; choose another folder or add a "
+                         f"revision with 'fnsi study revise {folder}'")
+    study = Study.create(Measurement.from_npz(args.estimation),
+                         Measurement.from_npz(args.validation), _identification_settings(args),
+                         connections=[_pair(text) for text in args.connection],
+                         name=args.name, note=args.note, progress=_progress)
+    print(file=sys.stderr)
+    _save_study(study, folder, study_figures(study))
+    print(study.history_table())
+    print(f"study saved in {folder}/")
+    return 0
+
+
+def _removal(text: str) -> int | dict:
+    """An element to remove: its index in the base revision, or its JSON."""
+    return int(text) if text.strip().isdigit() else json.loads(text)
+
+
+def _cmd_study_revise(args: argparse.Namespace) -> int:
+    from fnsi.study import Study
+    from fnsi.study_plots import study_figures
+
+    study = Study.load(args.study)
+    revision = study.add_revision(
+        add=[json.loads(text) for text in args.add], remove=[_removal(t) for t in args.remove],
+        order=None if args.order is None else _order(args.order), note=args.note,
+        base=-1 if args.base is None else args.base, progress=_progress)
+    print(file=sys.stderr)
+    _save_study(study, Path(args.study), study_figures(study, revision.number))
+    print(study.history_table())
+    return 0
+
+
+def _cmd_study_diagnose(args: argparse.Namespace) -> int:
+    from fnsi.diagnosis import DiagnosisSettings
+    from fnsi.study import Study
+    from fnsi.study_plots import diagnosis_figures, study_figures
+
+    folder = Path(args.study)
+    study = Study.load(folder)
+    settings = DiagnosisSettings(top_locations=args.top_locations,
+                                 validated_candidates=args.validated_candidates,
+                                 curve_locations=args.curve_locations,
+                                 include_missing_mode=not args.no_missing_mode)
+    number = len(study.revisions) - 1 if args.revision is None else args.revision
+    diagnosis = study.diagnose(number, settings, progress=_progress)
+    print(file=sys.stderr)
+    prefix = f"diagnosis-{diagnosis.revision}"
+    (folder / f"{prefix}.json").write_text(json.dumps(diagnosis.to_json(), indent=1))
+    for name, content in diagnosis_figures(diagnosis).items():
+        (folder / f"{prefix}-{name}").write_bytes(content)
+    print(diagnosis.summary)
+    for rank, candidate in enumerate(diagnosis.candidates, start=1):
+        print(f"{rank}. {candidate.effect.value}: validation NRMSE "
+              f"{candidate.validation_nrmse_percent:.3g} % "
+              f"(x{candidate.error_reduction_factor:.3g} better)"
+              f"{'' if candidate.beats_noise_floor else ', within the noise'}")
+        print(f"   {candidate.explanation}")
+        if candidate.element is not None:
+            print(f"   --add '{json.dumps(candidate.element.to_json())}'")
+    best = diagnosis.candidates[0] if diagnosis.candidates else None
+    if args.apply and best is not None and best.element is not None and diagnosis.found:
+        revision = study.add_revision(add=[best.element], note=best.effect.value,
+                                      base=diagnosis.revision, progress=_progress)
+        print(file=sys.stderr)
+        _save_study(study, folder, study_figures(study, revision.number))
+        print(study.history_table())
+    return 0
+
+
+def _cmd_study_show(args: argparse.Namespace) -> int:
+    from fnsi.study import Study
+
+    study = Study.load(args.study)
+    if args.json:
+        print(json.dumps({"name": study.name, "history": study.history(),
+                          "revisions": [r.to_json() for r in study.revisions]}, indent=1))
+    else:
+        print(study.history_table())
+    return 0
+
+
+def _add_study_commands(commands) -> None:
+    study = commands.add_parser(
+        "study", help="modelling study: revisions judged on validation data, diagnoses")
+    actions = study.add_subparsers(dest="action", required=True)
+
+    create = actions.add_parser(
+        "create", help="identify a starting model (revision 0) and validate it")
+    create.add_argument("estimation", help="canonical NPZ dataset to identify on")
+    create.add_argument("validation", help="canonical NPZ dataset of the same set-up")
+    create.add_argument("-o", "--output", required=True, help="folder to keep the study in")
+    _add_identification_options(create)
+    create.add_argument("--connection", action="append", default=[], metavar="OUT_A,OUT_B",
+                        help="two outputs a physical element could join (repeatable)")
+    create.add_argument("--name", default="", help="free label")
+    create.add_argument("--note", default="starting model", help="what revision 0 is")
+    create.set_defaults(run=_cmd_study_create)
+
+    revise = actions.add_parser("revise", help="add a revision: add or remove elements, "
+                                "change the order")
+    revise.add_argument("study", help="study folder")
+    revise.add_argument("--add", action="append", default=[], metavar="JSON",
+                        help="nonlinear element to add, as JSON (repeatable)")
+    revise.add_argument("--remove", action="append", default=[], metavar="INDEX|JSON",
+                        help="element of the base revision to remove (repeatable)")
+    revise.add_argument("--order", help="new model order n, or 'auto' (default: keep)")
+    revise.add_argument("--note", help="what changed (default: generated)")
+    revise.add_argument("--base", type=int, help="revision to start from (default: latest)")
+    revise.set_defaults(run=_cmd_study_revise)
+
+    diagnose = actions.add_parser("diagnose", help="rank candidate missing effects")
+    diagnose.add_argument("study", help="study folder")
+    diagnose.add_argument("--revision", type=int, help="revision to diagnose (default: latest)")
+    diagnose.add_argument("--top-locations", type=int, default=3)
+    diagnose.add_argument("--validated-candidates", type=int, default=4)
+    diagnose.add_argument("--curve-locations", type=int, default=1)
+    diagnose.add_argument("--no-missing-mode", action="store_true",
+                          help="do not try one more linear mode")
+    diagnose.add_argument("--apply", action="store_true",
+                          help="add the best candidate as a new revision if it beats the "
+                          "noise floor")
+    diagnose.set_defaults(run=_cmd_study_diagnose)
+
+    show = actions.add_parser("show", help="print the error history")
+    show.add_argument("study", help="study folder")
+    show.add_argument("--json", action="store_true", help="revisions and errors as JSON")
+    show.set_defaults(run=_cmd_study_show)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``fnsi`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.run(args))
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"fnsi: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

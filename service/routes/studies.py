@@ -1,0 +1,197 @@
+"""Modelling studies: create, read the error history, add revisions, diagnose."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Path, Response
+
+from service.deps import ApiKeyDep, QueueDep, SettingsDep, StoreDep
+from service.problems import ERROR_RESPONSES, ProblemError
+from service.queue import JobQueue
+from service.schemas.jobs import Job
+from service.schemas.studies import (
+    Candidate,
+    DiagnosisRequest,
+    HistoryRow,
+    Revision,
+    RevisionArtefacts,
+    RevisionRequest,
+    Study,
+    StudyDiagnosis,
+    StudyJob,
+    StudyRequest,
+)
+from service.store import DatasetRecord, JobRecord, JobState, Store
+from service.study_store import StudyRecord, StudyStore
+from service.submission import check_request
+
+router = APIRouter(prefix="/v1/studies", tags=["studies"], responses=ERROR_RESPONSES)
+_CONFLICT = {409: ERROR_RESPONSES[422] | {"description": "Conflict"}}
+
+# What estimation and validation data must share (summary keys, in words).
+_SAME_SET_UP = (("inputs", "input channels"), ("outputs", "output channels"),
+                ("fs", "sampling rate [Hz]"), ("quantity", "measured quantity"))
+
+
+def get_studies(store: StoreDep) -> StudyStore:
+    """Studies of the running app."""
+    return StudyStore(store)
+
+
+StudiesDep = Annotated[StudyStore, Depends(get_studies)]
+
+
+def own_study(study_id: Annotated[str, Path(description="Study id.")], studies: StudiesDep,
+              owner: ApiKeyDep) -> StudyRecord:
+    """The caller's study, or 404 (another key's study looks exactly like an unknown id)."""
+    record = studies.get(study_id)
+    if record is None or record.owner != owner:
+        raise ProblemError(404, f"study {study_id} does not exist (or belongs to another API "
+                           "key); check the id returned by POST /v1/studies")
+    return record
+
+
+OwnStudyDep = Annotated[StudyRecord, Depends(own_study)]
+
+
+def _check_pair(store: Store, request: StudyRequest) -> None:
+    """Estimation and validation data of one set-up, and connections between outputs."""
+    estimation: DatasetRecord = store.get_dataset(request.dataset_id)
+    validation: DatasetRecord = store.get_dataset(request.validation_dataset_id)
+    a, b = estimation.summary, validation.summary
+    for key, words in _SAME_SET_UP:
+        if a[key] != b[key]:
+            raise ProblemError(422, f"validation_dataset_id: datasets {estimation.id} and "
+                               f"{validation.id} have different {words} ({a[key]} vs "
+                               f"{b[key]}); validate on a record of the same test set-up")
+    if b["periods"] - request.discard_periods < 1:
+        raise ProblemError(422, f"validation_dataset_id: dataset {validation.id} has "
+                           f"{b['periods']} periods and discard_periods={request.discard_periods}"
+                           "; record more periods or discard fewer")
+    outputs = request.outputs or a["outputs"]
+    for k, pair in enumerate(request.connections):
+        unknown = [name for name in pair if name not in outputs]
+        if unknown:
+            raise ProblemError(422, f"connections[{k}]: {unknown} are not outputs of the "
+                               f"study; valid names are {outputs}")
+
+
+def _check_elements(record: StudyRecord, store: Store, request: RevisionRequest) -> None:
+    """Elements added must act on outputs of the study."""
+    dataset = store.get_dataset(record.request["dataset_id"])
+    outputs = record.request["outputs"] or (dataset.summary["outputs"] if dataset else None)
+    if outputs is None:  # estimation data deleted: the job says so
+        return
+    for k, element in enumerate(request.add):
+        for field, name in (("dof", element.dof), ("ref", element.ref)):
+            if name is not None and name not in outputs:
+                raise ProblemError(422, f"add[{k}].{field}: {name!r} is not an output of the "
+                                   f"study; valid names are {outputs}")
+
+
+def _check_alive(studies: StudyStore, record: StudyRecord) -> None:
+    """409 when the study has no revision and none is coming (its creation failed)."""
+    jobs = studies.jobs(record.id, record.owner)
+    if all(j.state in (JobState.FAILED, JobState.CANCELLED) for j in jobs
+           if j.kind != "study_diagnosis"):
+        raise ProblemError(409, f"study {record.id} has no revision and none is coming: its "
+                           "creation job failed or was cancelled; see that job's error and "
+                           "create the study again")
+
+
+def _submit(store: Store, queue: JobQueue, record: StudyRecord, kind: str,
+            request: dict[str, Any]) -> JobRecord:
+    job = store.create_job(record.owner, kind, {"study_id": record.id, **request})
+    queue.submit(job.id)
+    return job
+
+
+def _artefacts(store: Store, job_id: str) -> dict[str, str]:
+    return {name: f"/v1/jobs/{job_id}/artefacts/{name}" for name, _ in
+            store.list_artefacts(job_id)}
+
+
+def _revision(store: Store, data: dict[str, Any], job_id: str) -> Revision:
+    links = _artefacts(store, job_id)
+    number = data["number"]
+    figures = RevisionArtefacts(
+        comparison=links.get(f"revision-{number}-comparison.png"),
+        residual_spectra=links.get(f"revision-{number}-residual-spectra.png"),
+        residual_map=links.get(f"revision-{number}-residual-map.png"),
+        all=f"/v1/jobs/{job_id}/artefacts")
+    return Revision(**data, job_id=job_id, artefacts=figures)
+
+
+def _diagnosis(job: JobRecord) -> StudyDiagnosis:
+    result = job.result or {}
+    return StudyDiagnosis(job_id=job.id, state=job.state, revision=result.get("revision"),
+                          found=result.get("found"), summary=result.get("summary"),
+                          candidates=[Candidate(**c) for c in result.get("candidates", [])],
+                          artefacts=f"/v1/jobs/{job.id}/artefacts")
+
+
+def _view(store: Store, studies: StudyStore, record: StudyRecord) -> Study:
+    snapshot = studies.snapshot(record.id)
+    jobs = studies.jobs(record.id, record.owner)
+    revisions, history, chart = [], [], None
+    if snapshot is not None:
+        revisions = [_revision(store, data, job_id) for data, job_id in
+                     zip(snapshot.study["revisions"], snapshot.producers, strict=True)]
+        history = [HistoryRow(**row) for row in snapshot.study["history"]]
+        chart = _artefacts(store, snapshot.producers[-1]).get("history.png")
+    return Study(
+        id=record.id, name=record.name, created_at=record.created_at,
+        definition=record.request, revisions=revisions,
+        history=history, history_chart=chart,
+        diagnoses=[_diagnosis(j) for j in jobs if j.kind == "study_diagnosis"],
+        jobs=[StudyJob(id=j.id, kind=j.kind, state=j.state, message=j.message, error=j.error,
+                       url=f"/v1/jobs/{j.id}") for j in jobs])
+
+
+@router.post("", response_model=Study, status_code=202, summary="Create a study")
+def create_study(request: StudyRequest, store: StoreDep, queue: QueueDep, owner: ApiKeyDep,
+                 settings: SettingsDep, studies: StudiesDep, response: Response) -> Study:
+    """Create a study and queue its revision 0: the starting model identified on the
+    estimation data and judged on the validation data. Poll the study (or the job in
+    `jobs`) until revision 0 appears in `revisions`."""
+    check_request(store, owner, "identification", request, settings.memory_limit_mb)
+    _check_pair(store, request)
+    body = request.model_dump(mode="json")
+    record = studies.create(owner, request.name, body)
+    _submit(store, queue, record, "study", body)
+    response.headers["Location"] = f"/v1/studies/{record.id}"
+    return _view(store, studies, record)
+
+
+@router.get("/{study_id}", response_model=Study, summary="Get a study")
+def get_study(record: OwnStudyDep, store: StoreDep, studies: StudiesDep) -> Study:
+    """The study's revisions with their validation errors (the error history, with a
+    chart), its diagnoses with their ranked candidates, and its jobs."""
+    return _view(store, studies, record)
+
+
+@router.post("/{study_id}/revisions", response_model=Job, status_code=202,
+             summary="Add a revision", responses=_CONFLICT)
+def create_revision(request: RevisionRequest, record: OwnStudyDep, store: StoreDep,
+                    queue: QueueDep, studies: StudiesDep) -> Job:
+    """Queue a new revision: add or remove nonlinear elements, change the order. Its
+    result names the revision number and the error history; its artefacts are the
+    revision's figures. Revisions of a study run one at a time, in the order requested."""
+    _check_alive(studies, record)
+    _check_elements(record, store, request)
+    return Job.of(_submit(store, queue, record, "study_revision",
+                          request.model_dump(mode="json")))
+
+
+@router.post("/{study_id}/diagnoses", response_model=Job, status_code=202,
+             summary="Diagnose a revision", responses=_CONFLICT)
+def create_diagnosis(request: DiagnosisRequest, record: OwnStudyDep, store: StoreDep,
+                     queue: QueueDep, studies: StudiesDep) -> Job:
+    """Queue a diagnosis: which physical effect the revision lacks, and where. Its result
+    lists `candidates`, best first, each with `effect`, `element` (ready to POST as a
+    revision's `add`), `validation_nrmse_percent`, `error_reduction_factor` and
+    `explanation`; its artefacts show stiffness curves at the top locations."""
+    _check_alive(studies, record)
+    return Job.of(_submit(store, queue, record, "study_diagnosis",
+                          request.model_dump(mode="json")))

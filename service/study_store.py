@@ -1,0 +1,202 @@
+"""Studies on disk under FNSI_DATA_DIR: who owns them and their latest saved state.
+
+A study (:class:`fnsi.study.Study`) changes only by whole revisions, each computed by one
+job. Its state is kept as immutable snapshots written by :meth:`fnsi.study.Study.save`
+into the store's tmp folder and renamed into place, so a reader always sees a complete
+study and a job that dies while saving leaves the previous revision intact. Jobs of a
+study are ordinary jobs whose request names it (``study_id``); their order is the job
+sequence of the store. Revision jobs take the study's lock (``flock``, released by the
+kernel when a worker dies), so two revisions never read the same state and overwrite
+each other's result.
+
+Layout::
+
+    <data_dir>/studies/<study_id>/record.json        owner, name, creation request
+    <data_dir>/studies/<study_id>/lock               held while a revision is computed
+    <data_dir>/studies/<study_id>/revisions-<n>/     snapshot with n revisions:
+        study.json, estimation.npz, validation.npz, revisions.npz (Study.save) and
+        producers.json (the job that computed each revision)
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import re
+import shutil
+import sqlite3
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import closing, contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from fnsi.study import Study
+from service.store import JobRecord, Store, new_id, now_iso
+
+STUDY_ID = re.compile(r"^study_[0-9a-f]{20}$")
+_SNAPSHOT = re.compile(r"^revisions-(?P<count>[0-9]+)$")
+STUDY_JOB_KINDS = ("study", "study_revision", "study_diagnosis")
+"""Job kinds acting on a study: creation (revision 0), a revision, a diagnosis."""
+# How often [s] a job waiting for the study's lock or earlier revisions looks again.
+_WAIT_INTERVAL = 0.5
+
+
+@dataclass(frozen=True)
+class StudyRecord:
+    """A study as its owner created it; ``request`` is the validated creation request."""
+
+    id: str
+    owner: str
+    name: str
+    created_at: str
+    request: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """The latest saved state of a study, as read for a response (no arrays loaded).
+
+    Attributes
+    ----------
+    folder : Path
+        Snapshot folder (give to :meth:`fnsi.study.Study.load`).
+    study : dict
+        ``study.json``: settings, revisions with their validation errors, history.
+    producers : list of str
+        Id of the job that computed each revision.
+    """
+
+    folder: Path
+    study: dict[str, Any]
+    producers: list[str]
+
+
+class StudyStore:
+    """Studies kept beside the job store.
+
+    Parameters
+    ----------
+    store : Store
+        The job and dataset store; studies live in its data directory.
+    """
+
+    def __init__(self, store: Store) -> None:
+        self.store = store
+        self.root = store.root / "studies"
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def folder(self, study_id: str) -> Path:
+        """Folder of a study; ValueError for anything but a study id (no path tricks)."""
+        if not STUDY_ID.match(study_id):
+            raise ValueError(f"{study_id!r} is not a study id")
+        return self.root / study_id
+
+    # -- records ----------------------------------------------------------------------------
+    def create(self, owner: str, name: str, request: dict[str, Any]) -> StudyRecord:
+        """Record a new study of ``owner`` (atomically: a reader sees all of it or none)."""
+        record = StudyRecord(new_id("study"), owner, name, now_iso(), request)
+        folder = self.folder(record.id)
+        folder.mkdir()
+        with self.store.partial_file(".json") as partial:
+            partial.write_text(json.dumps(asdict(record)))
+            os.replace(partial, folder / "record.json")
+        return record
+
+    def get(self, study_id: str) -> StudyRecord | None:
+        """The study's record, or None if there is no such study."""
+        if not STUDY_ID.match(study_id):
+            return None
+        path = self.folder(study_id) / "record.json"
+        if not path.is_file():
+            return None
+        return StudyRecord(**json.loads(path.read_text()))
+
+    def jobs(self, study_id: str, owner: str) -> list[JobRecord]:
+        """Every job of the study, oldest first (read-only query of the job table)."""
+        marks = ", ".join("?" * len(STUDY_JOB_KINDS))
+        with closing(sqlite3.connect(self.store.db_path, timeout=30.0)) as db:
+            rows = db.execute(f"SELECT id FROM jobs WHERE owner = ? AND kind IN ({marks}) "
+                              "AND json_extract(request, '$.study_id') = ? ORDER BY seq",
+                              (owner, *STUDY_JOB_KINDS, study_id)).fetchall()
+        return self.store.jobs_of([row[0] for row in rows])
+
+    # -- snapshots --------------------------------------------------------------------------
+    def _snapshots(self, study_id: str) -> list[tuple[int, Path]]:
+        folder = self.folder(study_id)
+        found = [(int(m["count"]), p) for p in folder.iterdir()
+                 if (m := _SNAPSHOT.match(p.name)) and p.is_dir()] if folder.is_dir() else []
+        return sorted(found)
+
+    def snapshot(self, study_id: str) -> Snapshot | None:
+        """The latest saved state, or None before revision 0 is saved."""
+        for _ in range(3):  # a snapshot pruned between listing and reading: list again
+            snapshots = self._snapshots(study_id)
+            if not snapshots:
+                return None
+            folder = snapshots[-1][1]
+            try:
+                return Snapshot(folder, json.loads((folder / "study.json").read_text()),
+                                json.loads((folder / "producers.json").read_text()))
+            except FileNotFoundError:
+                continue
+        raise RuntimeError(f"study {study_id}: snapshots keep disappearing while read")
+
+    def load(self, study_id: str) -> tuple[Study, list[str]] | None:
+        """The latest saved study and the producer of each revision, or None."""
+        snapshot = self.snapshot(study_id)
+        if snapshot is None:
+            return None
+        return Study.load(snapshot.folder), snapshot.producers
+
+    def save(self, study_id: str, study: Study, producers: list[str]) -> Path:
+        """Save ``study`` as its newest snapshot; keep the one before (for readers still
+        on it) and remove older ones. Call while holding :meth:`locked`."""
+        count = len(study.revisions)
+        partial = Path(tempfile.mkdtemp(dir=self.store.tmp, prefix=f"{study_id}-"))
+        try:
+            study.save(partial)
+            (partial / "producers.json").write_text(json.dumps(producers))
+            final = self.folder(study_id) / f"revisions-{count}"
+            os.rename(partial, final)
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            raise
+        for number, folder in self._snapshots(study_id):
+            if number < count - 1:
+                shutil.rmtree(folder, ignore_errors=True)
+        return final
+
+    @contextmanager
+    def locked(self, study_id: str, wait: Callable[[], None]) -> Iterator[None]:
+        """Hold the study's lock; ``wait()`` is called between tries (it may raise to
+        give up, e.g. when the job is cancelled)."""
+        with open(self.folder(study_id) / "lock", "a") as handle:
+            while True:
+                try:
+                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    wait()
+                    time.sleep(_WAIT_INTERVAL)
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+    def wait_for_earlier_revisions(self, job: JobRecord, wait: Callable[[str], None]) -> None:
+        """Return once every revision job of the study submitted before ``job`` ended, so
+        that revisions apply in the order they were requested. ``wait(message)`` is
+        called between looks (it may raise to give up)."""
+        study_id = job.request["study_id"]
+        while True:
+            pending = [j for j in self.jobs(study_id, job.owner)
+                       if j.seq < job.seq and j.kind != "study_diagnosis"
+                       and j.state in ("queued", "running")]
+            if not pending:
+                return
+            wait(f"waiting for job {pending[0].id} ({pending[0].kind}) of the study")
+            time.sleep(_WAIT_INTERVAL)

@@ -1,0 +1,248 @@
+"""Modelling studies over real HTTP (fnsi-service with its embedded runner, two worker
+processes, API keys): create, diagnose, revise, read the error history, isolation,
+bad requests and a restart.
+
+The data are the 5-DOF chain of :mod:`tests.fnsi.test_diagnosis` with a hidden
+asymmetric clearance between x4 and x5 (:data:`tests.fnsi.test_cli.HIDDEN`): revision 0
+is linear, the diagnosis must find the clearance, and adding it must make the
+validation error fall.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import threading
+import time
+
+import pytest
+
+from fnsi.measurement import Measurement
+from service.store import Store
+from service.study_store import StudyStore
+from tests.fnsi.test_cli import HIDDEN
+from tests.fnsi.test_diagnosis import REDUCTION, chain, measure
+from tests.service.servers import start_stack, wait_for_job
+
+PNG = b"\x89PNG\r\n\x1a\n"
+ALICE, BOB = {"X-API-Key": "alice"}, {"X-API-Key": "bob"}
+# tests.fnsi.test_diagnosis.SETTINGS as a request.
+MODEL = {"band": [5.0, 60.0], "block_rows": 15, "order": 10, "max_order": 20,
+         "driving_points": [["F_x1", "x1"]]}
+EFFORT = {"top_locations": 2, "validated_candidates": 2, "include_missing_mode": False}
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """fnsi-service with two embedded workers (so study jobs can run at the same time)."""
+    stack = start_stack(tmp_path_factory.mktemp("studies") / "data",
+                        FNSI_API_KEYS="alice,bob", FNSI_EMBEDDED_WORKERS="2")
+    yield stack
+    stack.stop()
+
+
+def _upload(client, measurement: Measurement) -> str:
+    buffer = io.BytesIO()
+    measurement.to_npz(buffer)
+    response = client.post("/v1/datasets", files={"file": ("record.npz", buffer.getvalue())})
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+@pytest.fixture(scope="module")
+def records() -> tuple[Measurement, Measurement]:
+    """Estimation and validation records of the chain with the hidden clearance."""
+    model = chain(HIDDEN)
+    return measure(model, 1), measure(model, 2)
+
+
+@pytest.fixture(scope="module")
+def datasets(server, records):
+    """Estimation, validation, and a validation record with fewer outputs."""
+    estimation, validation = records
+    with server.client(headers=ALICE) as client:
+        return {"estimation": _upload(client, estimation),
+                "validation": _upload(client, validation),
+                "fewer": _upload(client, validation.select(outputs=["x1", "x2"]))}
+
+
+@pytest.fixture(scope="module")
+def worked(server, datasets):
+    """Create a study; diagnose it before revision 0 is done (the diagnosis waits); add
+    the top candidate and, right after, an order change (they run one after the other)."""
+    with server.client(headers=ALICE) as client:
+        created = client.post("/v1/studies", json={
+            **MODEL, "dataset_id": datasets["estimation"],
+            "validation_dataset_id": datasets["validation"], "name": "chain"})
+        assert created.status_code == 202, created.text
+        study = created.json()
+        assert created.headers["location"] == f"/v1/studies/{study['id']}"
+        assert study["revisions"] == [] and [j["kind"] for j in study["jobs"]] == ["study"]
+        diagnosis = client.post(f"/v1/studies/{study['id']}/diagnoses", json=EFFORT)
+        assert diagnosis.status_code == 202, diagnosis.text
+        diagnosis = wait_for_job(client, diagnosis.json()["id"])
+        assert diagnosis["state"] == "succeeded", diagnosis
+        top = diagnosis["result"]["candidates"][0]
+        revisions = [client.post(f"/v1/studies/{study['id']}/revisions", json=body)
+                     for body in ({"add": [top["element"]], "note": "clearance"},
+                                  {"order": 12})]
+        assert [r.status_code for r in revisions] == [202, 202], revisions[-1].text
+        revisions = [wait_for_job(client, r.json()["id"]) for r in revisions]
+        assert [r["state"] for r in revisions] == ["succeeded"] * 2, revisions
+        return {"id": study["id"], "diagnosis": diagnosis, "revisions": revisions,
+                "study": client.get(f"/v1/studies/{study['id']}").json()}
+
+
+def test_diagnosis_ranks_the_hidden_clearance_first(server, worked):
+    result = worked["diagnosis"]["result"]
+    assert result["revision"] == 0 and result["found"]
+    top = result["candidates"][0]
+    assert top["effect"] == "clearance"
+    assert (top["element"]["kind"], top["element"]["dof"], top["element"]["ref"]) == (
+        "clearance", "x4", "x5")
+    assert "clearance between x4 and x5" in top["explanation"]
+    assert top["error_reduction_factor"] >= REDUCTION  # issue 7: >= 10 x
+    assert top["validation_nrmse_percent"] < result["nrmse_before_percent"]
+    with server.client(headers=ALICE) as client:
+        stiffness = client.get(f"/v1/jobs/{worked['diagnosis']['id']}/artefacts/stiffness.png")
+        assert stiffness.status_code == 200 and stiffness.content.startswith(PNG)
+
+
+def test_added_element_lowers_the_error_and_the_study_shows_the_history(server, worked):
+    study = worked["study"]
+    assert [r["number"] for r in study["revisions"]] == [0, 1, 2]
+    history = study["history"]
+    assert [row["note"] for row in history] == ["starting model", "clearance", "order 12"]
+    # The hidden clearance causes most of the linear model's error (issue 7: >= 10 x).
+    assert history[0]["nrmse_percent"] / history[1]["nrmse_percent"] >= REDUCTION
+    assert study["revisions"][1]["validation"]["channels"][0]["output"] == "x1"
+    (diagnosis,) = study["diagnoses"]
+    assert diagnosis["candidates"][0]["effect"] == "clearance"
+    assert [j["kind"] for j in study["jobs"]] == ["study", "study_diagnosis",
+                                                 "study_revision", "study_revision"]
+    with server.client(headers=ALICE) as client:
+        links = [study["history_chart"], *study["revisions"][1]["artefacts"].values()]
+        for link in links:
+            response = client.get(link)
+            assert response.status_code == 200, link
+        assert client.get(study["history_chart"]).content.startswith(PNG)
+
+
+def test_revisions_apply_in_request_order_without_losing_one(worked):
+    first, second = worked["revisions"]
+    assert (first["result"]["revision"], second["result"]["revision"]) == (1, 2)
+    # The order change was computed on top of the clearance revision, not beside it.
+    revision = worked["study"]["revisions"][2]
+    assert [e["kind"] for e in revision["elements"]] == ["clearance"]
+    assert revision["identified_order"] == 12
+    assert revision["job_id"] == second["id"]
+
+
+def test_study_of_another_key_is_not_found(server, worked):
+    with server.client(headers=BOB) as client:
+        study = f"/v1/studies/{worked['id']}"
+        for response in (client.get(study),
+                         client.post(f"{study}/revisions", json={"order": 8}),
+                         client.post(f"{study}/diagnoses", json={})):
+            assert response.status_code == 404
+            assert response.headers["content-type"] == "application/problem+json"
+            assert "belongs to another API key" in response.json()["detail"]
+
+
+def test_bad_requests_say_what_to_change(server, datasets, worked):
+    study = f"/v1/studies/{worked['id']}"
+    pair = {**MODEL, "dataset_id": datasets["estimation"],
+            "validation_dataset_id": datasets["validation"]}
+    cases = [
+        ("/v1/studies", {**pair, "validation_dataset_id": "ds_nope"},
+         422, "validation_dataset_id: dataset ds_nope does not exist"),
+        ("/v1/studies", {**pair, "validation_dataset_id": datasets["fewer"]},
+         422, "different output channels"),
+        ("/v1/studies", {**pair, "connections": [["x1", "x9"]]},
+         422, "connections[0]: ['x9'] are not outputs"),
+        ("/v1/studies", {**pair, "order": 30}, 422, "max_order"),
+        (f"{study}/revisions", {"add": [{"kind": "clearance", "dof": "x9", "gap": 0.001}]},
+         422, "add[0].dof: 'x9' is not an output"),
+        (f"{study}/diagnoses", {"validated_candidates": 0}, 422, "validated_candidates"),
+        ("/v1/studies/study_0123456789abcdef0123/revisions", {}, 404, "does not exist"),
+        ("/v1/studies/..%2F..%2Fjobs/diagnoses", {}, 404, ""),
+    ]
+    with server.client(headers=ALICE) as client:
+        for path, body, status, words in cases:
+            response = client.post(path, json=body)
+            assert response.status_code == status, (path, body, response.text)
+            assert response.headers["content-type"] == "application/problem+json"
+            assert words in response.json()["detail"], response.json()
+        failing = client.post(f"{study}/revisions", json={"remove": [5]})
+        job = wait_for_job(client, failing.json()["id"])
+        assert job["state"] == "failed" and "no element 5 to remove" in job["error"]
+        assert len(client.get(study).json()["revisions"]) == 3  # nothing lost
+
+
+def test_openapi_names_the_study_operations(server):
+    with server.client() as client:
+        paths = client.get("/openapi.json").json()["paths"]
+    assert paths["/v1/studies"]["post"]["operationId"] == "create_study"
+    assert paths["/v1/studies/{study_id}"]["get"]["operationId"] == "get_study"
+    assert paths["/v1/studies/{study_id}/revisions"]["post"]["operationId"] == "create_revision"
+    assert paths["/v1/studies/{study_id}/diagnoses"]["post"]["operationId"] == (
+        "create_diagnosis")
+
+
+def test_study_survives_a_restart(server, worked):
+    server.kill_api()
+    server.start_api()
+    with server.client(headers=ALICE) as client:
+        study = client.get(f"/v1/studies/{worked['id']}").json()
+    assert study["history"] == worked["study"]["history"]
+
+
+class _SavedStudy:
+    """Stands in for fnsi.study.Study in storage tests: ``save`` writes study.json (and
+    fails half-way when asked), which is all StudyStore needs."""
+
+    def __init__(self, revisions: int, fail: bool = False) -> None:
+        self.revisions, self.fail = [None] * revisions, fail
+
+    def save(self, folder):
+        (folder / "study.json").write_text(json.dumps({"revisions": len(self.revisions)}))
+        if self.fail:
+            raise OSError("disk full")
+
+
+def test_a_failed_save_keeps_the_previous_snapshot(tmp_path):
+    studies = StudyStore(Store(tmp_path))
+    study = studies.create("owner", "", {})
+    studies.save(study.id, _SavedStudy(1), ["job_a"])
+    with pytest.raises(OSError):
+        studies.save(study.id, _SavedStudy(2, fail=True), ["job_a", "job_b"])
+    snapshot = studies.snapshot(study.id)
+    assert snapshot.producers == ["job_a"] and snapshot.study == {"revisions": 1}
+    assert list(studies.store.tmp.iterdir()) == []   # the partial snapshot is gone
+    for count in (2, 3):
+        studies.save(study.id, _SavedStudy(count), ["job"] * count)
+    # The newest and the one before it (a reader may still be on it) are kept.
+    assert sorted(p.name for p in studies.folder(study.id).glob("revisions-*")) == [
+        "revisions-2", "revisions-3"]
+
+
+def test_the_study_lock_admits_one_job_at_a_time(tmp_path):
+    studies = StudyStore(Store(tmp_path))
+    study = studies.create("owner", "", {})
+    holding, events = threading.Event(), []
+
+    def first():
+        with studies.locked(study.id, lambda: None):
+            holding.set()
+            time.sleep(0.6)
+            events.append("first released")
+
+    thread = threading.Thread(target=first)
+    thread.start()
+    holding.wait()
+    waits = []
+    with studies.locked(study.id, lambda: waits.append(1)):
+        events.append("second entered")
+    thread.join()
+    assert events == ["first released", "second entered"]
+    assert waits  # the waiting side reported (lease renewal, cancel checks) while it waited
