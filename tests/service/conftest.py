@@ -6,12 +6,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import redis
 from fastapi.testclient import TestClient
 
 from service.app import create_app
 from service.settings import Settings
-from tests.service.servers import Stack, redis_test_url, start_stack
+from tests.service.servers import Stack, start_stack
+from tests.service.servers import celery_stack as running_celery_stack
 
 
 @pytest.fixture
@@ -49,13 +49,8 @@ def embedded_stack(tmp_path_factory) -> Iterator[Stack]:
 @pytest.fixture(scope="session")
 def celery_stack(tmp_path_factory) -> Iterator[Stack]:
     """fnsi-service with a Redis broker and one fnsi-worker process."""
-    url = redis_test_url()
-    broker = redis.Redis.from_url(url)
-    broker.flushdb()
-    stack = start_stack(tmp_path_factory.mktemp("celery") / "data", broker_url=url, workers=1)
-    yield stack
-    stack.stop()
-    broker.flushdb()
+    with running_celery_stack(tmp_path_factory.mktemp("celery") / "data") as stack:
+        yield stack
 
 
 @pytest.fixture(scope="session", params=["embedded", "celery"])

@@ -8,11 +8,14 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import urlsplit, urlunsplit
 
 import httpx
+import redis
 
 BIN = Path(sys.executable).parent
 TEST_REDIS_DB = 15
@@ -124,6 +127,20 @@ def start_stack(data_dir: Path, *, broker_url: str | None = None, workers: int =
     for k in range(workers):
         stack.start_worker(f"w{k}")
     return stack
+
+
+@contextmanager
+def celery_stack(data_dir: Path) -> Iterator[Stack]:
+    """fnsi-service and one fnsi-worker on the test Redis, its database flushed around."""
+    url = redis_test_url()
+    broker = redis.Redis.from_url(url)
+    broker.flushdb()
+    stack = start_stack(data_dir, broker_url=url, workers=1)
+    try:
+        yield stack
+    finally:
+        stack.stop()
+        broker.flushdb()
 
 
 def wait_for_job(client: httpx.Client, job_id: str, timeout: float = 240,
