@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import secrets
-from typing import Annotated
+from typing import Annotated, Protocol, TypeVar
 
 from fastapi import Depends, Path, Request, Security
 from fastapi.security import APIKeyHeader
@@ -60,36 +60,38 @@ def get_owner(settings: SettingsDep,
 ApiKeyDep = Annotated[str, Depends(get_owner)]
 
 
-def _not_found(what: str, object_id: str) -> ProblemError:
-    return ProblemError(404, f"{what} {object_id} does not exist (or belongs to another API "
-                        "key); check the id returned when it was created")
+class _Owned(Protocol):
+    owner: str
+
+
+R = TypeVar("R", bound=_Owned)
+
+
+def owned(record: R | None, owner: str, what: str, object_id: str) -> R:
+    """``record`` if the caller owns it; else 404, the same answer as for an unknown id, so
+    another key's objects are never confirmed to exist."""
+    if record is None or record.owner != owner:
+        raise ProblemError(404, f"{what} {object_id} does not exist (or belongs to another "
+                           "API key); check the id returned when it was created")
+    return record
 
 
 def own_dataset(dataset_id: Annotated[str, Path(description="Dataset id.")],
                 store: StoreDep, owner: ApiKeyDep) -> DatasetRecord:
     """The caller's dataset, or 404."""
-    record = store.get_dataset(dataset_id)
-    if record is None or record.owner != owner:
-        raise _not_found("dataset", dataset_id)
-    return record
+    return owned(store.get_dataset(dataset_id), owner, "dataset", dataset_id)
 
 
 def own_job(job_id: Annotated[str, Path(description="Job id.")],
             store: StoreDep, owner: ApiKeyDep) -> JobRecord:
     """The caller's job, or 404."""
-    record = store.get_job(job_id)
-    if record is None or record.owner != owner:
-        raise _not_found("job", job_id)
-    return record
+    return owned(store.get_job(job_id), owner, "job", job_id)
 
 
 def own_batch(batch_id: Annotated[str, Path(description="Batch id.")],
               store: StoreDep, owner: ApiKeyDep) -> BatchRecord:
     """The caller's batch, or 404."""
-    record = store.get_batch(batch_id)
-    if record is None or record.owner != owner:
-        raise _not_found("batch", batch_id)
-    return record
+    return owned(store.get_batch(batch_id), owner, "batch", batch_id)
 
 
 OwnDatasetDep = Annotated[DatasetRecord, Depends(own_dataset)]

@@ -6,7 +6,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Path, Response
 
-from service.deps import ApiKeyDep, QueueDep, SettingsDep, StoreDep
+from service.deps import ApiKeyDep, QueueDep, SettingsDep, StoreDep, owned
 from service.problems import ERROR_RESPONSES, ProblemError
 from service.queue import JobQueue
 from service.schemas.jobs import Job
@@ -45,11 +45,7 @@ StudiesDep = Annotated[StudyStore, Depends(get_studies)]
 def own_study(study_id: Annotated[str, Path(description="Study id.")], studies: StudiesDep,
               owner: ApiKeyDep) -> StudyRecord:
     """The caller's study, or 404 (another key's study looks exactly like an unknown id)."""
-    record = studies.get(study_id)
-    if record is None or record.owner != owner:
-        raise ProblemError(404, f"study {study_id} does not exist (or belongs to another API "
-                           "key); check the id returned by POST /v1/studies")
-    return record
+    return owned(studies.get(study_id), owner, "study", study_id)
 
 
 OwnStudyDep = Annotated[StudyRecord, Depends(own_study)]
