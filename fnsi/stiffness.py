@@ -3,7 +3,8 @@
 The restoring force of an element is f = sum_j mu_j g_j (Eq. 2). With the identified
 coefficients (the band average of the real part of mu_j(omega), Section II.E) it is drawn
 against the relative displacement over the measured range: for a cubic-spline element the
-coefficients are the knot ordinates (Eq. 19-22), for a known form they scale its basis.
+coefficients are the knot ordinates outside the interval holding the equilibrium (Eq. 19-22,
+:func:`fnsi.nonlinear.spline_matrices`), for a known form they scale its basis.
 Elements that depend on velocity (Coulomb friction, quadratic damping) give the force
 against the relative velocity instead.
 
@@ -93,7 +94,8 @@ def stiffness_curve(
         The element; its ``basis`` gives g_j (Eq. 2, 19-22).
     coefficients : ndarray, shape (n_basis,), real, optional
         Identified mu_j: the band-averaged real parts of the nonlinear coefficients
-        (spline knot ordinates for a spline). Default: ``element.coefficients``.
+        (for a spline, its ordinates at the knots outside the interval holding 0).
+        Default: ``element.coefficients``.
     x : (float, float) or ndarray, optional
         Measured range (low, high) [m] sampled at ``points`` abscissae, or explicit
         abscissae (three or more). Default for splines: the range of their knots.

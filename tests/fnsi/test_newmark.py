@@ -224,16 +224,20 @@ def test_linear_modes_of_non_proportionally_damped_model():
         pytest.approx(0.03))
 
 
-def test_spline_element_integrates_like_the_cubic_it_reproduces():
-    # knot ordinates k3 q^3 make the spline exactly k3 x^3 inside the knots (Eq. 19-22), so
-    # both models must give the same response up to rounding and Newton tolerance
-    knots = tuple(np.linspace(-1.25, 1.25, 6))
-    spline = NonlinearElement("spline", "x", knots=knots,
-                              coefficients=tuple(0.5 * np.asarray(knots) ** 3))
+def test_spline_element_integrates_like_the_cubic_it_approximates():
+    # natural splines (Eq. 19-22) cannot hold x^3 exactly (g'' = 0 at the end knots); the
+    # least-squares spline on 24 knots follows 0.5 x^3 to 0.2 % of the peak force, and the
+    # responses agree to 1e-4 of the peak displacement (1e-3 asserted)
+    knots = tuple(np.linspace(-1.25, 1.25, 24))
+    x = np.linspace(-1.25, 1.25, 501)
+    ordinates = np.linalg.lstsq(NonlinearElement("spline", "x", knots=knots).basis(x),
+                                0.5 * x**3, rcond=None)[0]
+    spline = NonlinearElement("spline", "x", knots=knots, coefficients=tuple(ordinates))
     cubic = NonlinearElement("polynomial", "x", exponent=3.0, coefficients=(0.5,))
+    assert np.max(np.abs(spline.force(x) - cubic.force(x))) < 2.5e-3 * 0.5 * 1.25**3
     dt = 2 * np.pi / 0.9 / 100
     force = 0.3 * np.cos(0.9 * np.arange(3001) * dt)[:, None]
     responses = [newmark(StructuralModel(np.eye(1), 0.1 * np.eye(1), np.eye(1), ("x",), (e,)),
                          force, dt).displacement for e in (spline, cubic)]
     assert np.max(np.abs(responses[0])) < 1.25
-    np.testing.assert_allclose(responses[0], responses[1], atol=1e-9)
+    np.testing.assert_allclose(responses[0], responses[1], atol=1e-3)
