@@ -250,9 +250,10 @@ class Candidate:
     screening_reduction : float or None
         Stage-2 fixed-pole residual reduction [-] (None for a missing mode).
     log10_real_imag : float or None
-        Band mean of log10(|Re mu| / |Im mu|) of the candidate's coefficients.
+        log10(|Re mu| / |Im mu|) of the least-squares estimate of the candidate's
+        coefficients over the band (:class:`fnsi.modal.Coefficient`).
     flatness_percent : float or None
-        Spread of Re mu over frequency relative to its band mean [%].
+        Weighted spread of Re mu over frequency relative to the estimate [%].
     explanation : str
         One or two sentences a test engineer reads.
     failure : str or None

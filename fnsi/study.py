@@ -115,7 +115,7 @@ class Evaluation:
 
     def coefficient_quality(self, element: NonlinearElement
                             ) -> tuple[np.ndarray, float, float] | None:
-        """Band-mean real coefficients, log10(Re/Im) and flatness [%] of one element.
+        """Estimated real coefficients, log10(Re/Im) and flatness [%] of one element.
 
         Returns None when the identification reports no coefficient for it.
         """

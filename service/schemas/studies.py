@@ -7,7 +7,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
 from fnsi.diagnosis import Effect
-from service.schemas.identifications import IdentificationRequest, NonlinearElementSpec
+from service.schemas.identifications import Auto, IdentificationRequest, NonlinearElementSpec
 from service.store import JobState
 
 _CLEARANCE = {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5}
@@ -70,7 +70,7 @@ class RevisionRequest(BaseModel):
         default_factory=list, max_length=100,
         description="Elements of the base revision to remove: their index in its "
         "`elements`, or the element itself.", examples=[[0]])
-    order: StrictInt | Literal["auto"] | None = Field(
+    order: StrictInt | Auto | None = Field(
         None, description="New model order n, or \"auto\"; null keeps the base revision's "
         "identified order.", examples=[24])
     note: str | None = Field(None, max_length=500, description="What changed; default "
@@ -141,10 +141,11 @@ class Candidate(BaseModel):
     screening_reduction: float | None = Field(
         None, description="Fraction of the fixed-pole residual it explains [-].")
     log10_real_imag: float | None = Field(
-        None, description="Band mean of log10(|Re mu| / |Im mu|) of its coefficients; "
-        "large for a physical element (paper Section II.E).")
+        None, description="log10(|Re mu| / |Im mu|) of the least-squares estimate of its "
+        "coefficients over the band; large for a physical element (paper Section II.E).")
     flatness_percent: float | None = Field(
-        None, description="Spread of Re mu over frequency relative to its mean [%].")
+        None, description="Weighted spread of Re mu over frequency relative to the "
+        "estimate [%].")
     explanation: str = Field(description="Why, in words.", examples=[
         "A clearance of about ±1.5 between NC2w_Z and NC2b_Z explains ..."])
     failure: str | None = Field(None, description="Why the validated model failed.")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -120,9 +122,58 @@ def test_two_elements_mimo(chain):
 
 
 def test_quality_criteria():
+    # no weights: the plain band mean; log10(Re/Im) is that of the band estimate (the
+    # per-line mean of log10 |Re / Im|, 2.0 here, was used before)
     values = np.array([100 + 1j, 110 - 1j, 90 + 1j])
     c = Coefficient("k", 0, 0, np.arange(3.0), values, "driving point")
+    assert c.estimate == pytest.approx(100 + 1j / 3)
     assert c.mean_real == pytest.approx(100.0)
-    assert c.log10_real_imag == pytest.approx(np.mean(np.log10([100, 110, 90])))
+    assert c.log10_real_imag == pytest.approx(np.log10(300.0))
     assert c.variation == pytest.approx(np.std([100, 110, 90]) / 100)
-    assert c.to_json(spectrum=True)["values"][0] == [100.0, 1.0]
+    summary = c.to_json(spectrum=True)
+    assert summary["values"][0] == [100.0, 1.0]
+    assert summary["mean_imag"] == pytest.approx(1 / 3)
+    assert summary["weights"] == pytest.approx([1 / 3] * 3)
+
+
+def test_weighted_estimate_is_the_least_squares_constant():
+    # Eq. 17 per line: He_j = -mu H b_j; the estimate minimises
+    # sum_k P(k) |He_j(k) + mu H b_j(k)|^2, so a line near an anti-resonance of H b_j
+    # (tiny |H b_j|, ratio corrupted by model error) hardly counts
+    rng = np.random.default_rng(1)
+    h = rng.normal(size=6) + 1j * rng.normal(size=6)
+    h[2] = 1e-3
+    he = -100.0 * h + 0.01 * (rng.normal(size=6) + 1j * rng.normal(size=6))
+    he[2] = -100.0 * h[2] + 0.05  # ratio off by 50 % on that line
+    power = rng.uniform(0.5, 2.0, size=6)
+    c = Coefficient("k", 0, 0, np.arange(6.0), -he / h, "driving point",
+                    weights=power * np.abs(h) ** 2)
+    expected = -np.sum(power * np.conj(h) * he) / np.sum(power * np.abs(h) ** 2)
+    assert c.estimate == pytest.approx(expected, rel=1e-12)
+    assert abs(c.mean_real - 100.0) < 0.05
+    assert abs(np.mean(c.values.real) - 100.0) > 5.0  # the plain mean is not
+
+
+def test_weights_of_the_driving_point_estimate(structure):
+    element = NonlinearElement("clearance", "a", "b", gap=1e-3)
+    model = exact_model(structure, ["a"], (element,))
+    power = np.ones((FREQUENCIES.size, 2))
+    power[::2, 1] = 0.0  # the basis carries no power on every other line
+    (mu,) = nonlinear_coefficients(model, FREQUENCIES, input_power=power)
+    He = model.frequency_response(FREQUENCIES)
+    np.testing.assert_allclose(mu.weights, power[:, 1] * np.abs(He[:, 0, 0] - He[:, 1, 0]) ** 2)
+    assert mu.mean_real == pytest.approx(2.0e4, rel=1e-7)
+    with pytest.raises(ValueError, match="input_power must have shape"):
+        nonlinear_coefficients(model, FREQUENCIES, input_power=power[:, :1])
+    dead = Coefficient("k", 0, 0, FREQUENCIES, mu.values, mu.method, weights=0 * mu.weights)
+    with pytest.raises(ValueError, match="sum to zero"):
+        _ = dead.mean_real
+
+
+def test_subset_keeps_the_confirmed_flags(structure):
+    model = exact_model(structure, ["a"], ())
+    table = dataclasses.replace(modal_table(model.A, model.C, FS, model.output_names),
+                                confirmed=np.array([True, False, True]))
+    kept = table.subset(table.confirmed)
+    np.testing.assert_array_equal(kept.frequencies, table.frequencies[[0, 2]])
+    assert kept.confirmed.tolist() == [True, True] and kept.shapes.shape == (2, 3)

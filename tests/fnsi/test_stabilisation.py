@@ -7,10 +7,12 @@ import json
 import numpy as np
 import pytest
 
+from fnsi.modal import ModalTable
 from fnsi.stabilisation import (
     PoleClass,
     StabilisationTolerances,
     choose_order,
+    confirmed_poles,
     macx_matrix,
     stabilisation_diagram,
 )
@@ -150,6 +152,54 @@ def test_choose_order_takes_the_lower_order_of_the_first_plateau():
         choose_order(orders, counts, persistence=0)
 
 
+def test_choose_order_skips_a_reference_without_confirmed_poles():
+    orders = list(range(2, 17, 2))
+    counts = [0, 1, 1, 1, 2, 2, 2, 2]
+    assert choose_order(orders, counts, persistence=2) == 2
+    # the poles of order 2 are matched at 4 but lost further up: next plateau
+    confirmed = [0, 0, 0, 1, 2, 2, 2, 0]
+    assert choose_order(orders, counts, persistence=2, confirmed_counts=confirmed) == 8
+
+
+def _table(frequencies, damping=0.02, channels=3):
+    f = np.asarray(frequencies, dtype=float)
+    return ModalTable(f, np.full(f.size, damping), np.ones((f.size, channels)),
+                      tuple(f"y{k}" for k in range(channels)))
+
+
+def test_confirmation_needs_a_chain_of_fully_stable_poles():
+    tolerances = StabilisationTolerances()
+    # 10 Hz stays; 20 Hz is matched once (order index 1) then lost; 30 Hz changes its
+    # damping by 10 % between indices 1 and 2, so it is not fully stable there
+    tables = [_table([10.0, 20.0, 30.0]), _table([10.02, 20.05, 30.0]),
+              _table([10.01, 31.0]), _table([10.0])]
+    tables[2] = ModalTable(tables[2].frequencies, np.array([0.02, 0.022]),
+                           tables[2].shapes, tables[2].output_names)
+    one = confirmed_poles(tables, tolerances, 1)
+    two = confirmed_poles(tables, tolerances, 2)
+    assert [f.tolist() for f in one] == [[True, True, True], [True, False, False],
+                                         [True, False], [False]]
+    assert [f.tolist() for f in two] == [[True, False, False], [True, False, False],
+                                         [True, False], [False]]
+    with pytest.raises(ValueError, match="at least 1 order"):
+        confirmed_poles(tables, tolerances, 0)
+
+
+@pytest.mark.parametrize("confirmation", [1, 3])
+def test_diagram_flags_the_confirmed_poles(confirmation):
+    diagram = stabilisation_diagram(NoisyDecomposition(), FS, max_order=30, band=BAND,
+                                    confirmation=confirmation)
+    assert diagram.confirmation == confirmation and diagram.auto_order == 6
+    # true modes stay fully stable, spurious ones have random shapes and damping
+    for order in range(6, 29, 2):
+        modes = diagram.at(order).modes
+        kept = np.sort(modes.frequencies[modes.confirmed])
+        np.testing.assert_allclose(kept, np.sort(TRUE_FREQUENCIES), rtol=1e-3)
+    assert not diagram.at(30).modes.confirmed.any()  # nothing above it to confirm
+    # three true modes from order 6; order 4 holds two of them, order 2 one
+    np.testing.assert_array_equal(diagram.confirmed_counts()[:4], [1, 2, 3, 3])
+
+
 def test_tolerances_are_configurable_and_checked(diagram):
     strict = stabilisation_diagram(NoisyDecomposition(), FS, max_order=12, band=BAND,
                                    tolerances=StabilisationTolerances(frequency=1e-7))
@@ -171,8 +221,11 @@ def test_to_json_is_serialisable_and_complete(diagram):
     assert data["auto_order"] == 6
     assert data["orders"][0] == 2 and data["orders"][-1] == 30
     assert data["tolerances"] == {"frequency": 0.01, "damping": 0.05, "macx": 0.98}
+    assert data["confirmation"] == 1
+    assert data["confirmed_counts"] == diagram.confirmed_counts().tolist()
     pole = data["poles"][5]["poles"][0]
     assert pole["class"] in {c.value for c in PoleClass}
+    assert isinstance(pole["confirmed"], bool)
     assert len(pole["shape"]) == 4
     assert "shape" not in diagram.to_json()["poles"][5]["poles"][0]
 
