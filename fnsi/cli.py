@@ -78,7 +78,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _order(text: str) -> int | str:
+def _int_or_auto(text: str) -> int | str:
     return text if text == "auto" else int(text)
 
 
@@ -90,8 +90,8 @@ def _identification_settings(args: argparse.Namespace):
         inputs=_channels(args.inputs),
         outputs=_channels(args.outputs),
         band=(args.band[0], args.band[1]),
-        block_rows=args.block_rows,
-        order=_order(args.order),
+        block_rows=_int_or_auto(args.block_rows),
+        order=_int_or_auto(args.order),
         max_order=args.max_order,
         line_set=args.line_set,
         discard_periods=args.discard_periods,
@@ -173,7 +173,8 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--outputs", help="comma-separated output names (default: all)")
     parser.add_argument("--band", nargs=2, type=float, default=(5.0, 50.0),
                         metavar=("LOW_HZ", "HIGH_HZ"))
-    parser.add_argument("--block-rows", type=int, default=50, help="the paper's i")
+    parser.add_argument("--block-rows", default="auto",
+                        help="the paper's i, or 'auto' (from the harmonic lines)")
     parser.add_argument("--order", default="auto", help="model order n, or 'auto'")
     parser.add_argument("--max-order", type=int, default=60)
     parser.add_argument("--line-set", choices=["all", "excited"], default="all")
@@ -244,7 +245,7 @@ def _cmd_study_revise(args: argparse.Namespace) -> int:
     study = Study.load(args.study)
     revision = study.add_revision(
         add=[json.loads(text) for text in args.add], remove=[_removal(t) for t in args.remove],
-        order=None if args.order is None else _order(args.order), note=args.note,
+        order=None if args.order is None else _int_or_auto(args.order), note=args.note,
         base=-1 if args.base is None else args.base, progress=_progress)
     print(file=sys.stderr)
     _save_study(study, Path(args.study), study_figures(study, revision.number))

@@ -27,6 +27,7 @@ with the physical form of the element once the spline has revealed it.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -51,7 +52,13 @@ from fnsi.spectra import (
 from fnsi.stabilisation import StabilisationDiagram, stabilisation_diagram
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve, stiffness_curve
-from fnsi.subspace import SubspaceDecomposition, check_dimensions, decompose, memory_estimate
+from fnsi.subspace import (
+    SubspaceDecomposition,
+    auto_block_rows,
+    check_dimensions,
+    decompose,
+    memory_estimate,
+)
 
 Progress = Callable[[float, str], None]
 
@@ -64,8 +71,14 @@ class IdentificationSettings:
     ----------
     band : (float, float)
         Analysis band [Hz], 0 <= low < high <= fs / 2.
-    block_rows : int
-        Index i of Eq. 9 (paper: 50 with 39 outputs, 100 with 3).
+    block_rows : int or "auto"
+        Index i of Eq. 9 (paper: 50 with 39 outputs, 100 with 3), or ``"auto"``: the
+        largest i with (m + s + l) i <= N_s R, N_s the harmonic lines of the period in the
+        band and R the realisations, at most 100 (:func:`fnsi.subspace.auto_block_rows`;
+        :meth:`resolved` gives the count). With periodic data only the harmonic lines
+        carry signal, and a count that lets the elimination of E_i (Eq. 14) take all of
+        them is refused (:func:`fnsi.subspace.check_dimensions`, rule 3), also with
+        ``line_set="all"``.
     order : int or "auto"
         Model order n (twice the number of modes), or the automatic choice of the
         stabilisation diagram.
@@ -99,7 +112,7 @@ class IdentificationSettings:
     """
 
     band: tuple[float, float]
-    block_rows: int
+    block_rows: int | Literal["auto"] = "auto"
     order: int | Literal["auto"] = "auto"
     max_order: int = 60
     inputs: tuple[str, ...] | None = None
@@ -122,12 +135,61 @@ class IdentificationSettings:
                 set_(self, name, tuple(getattr(self, name)))
         if self.line_set not in LINE_SETS:
             raise ValueError(f"line_set must be one of {LINE_SETS}; got {self.line_set!r}")
+        i = self.block_rows
+        if i != "auto":
+            if (isinstance(i, bool) or not isinstance(i, numbers.Real)
+                    or not float(i).is_integer() or i < 2):
+                raise ValueError(f"block_rows must be an integer >= 2 or 'auto'; got {i!r}")
+            set_(self, "block_rows", int(i))
         if self.order != "auto" and (int(self.order) != self.order or self.order < 1):
             raise ValueError(f"order must be a positive integer or 'auto'; got {self.order!r}")
         if self.order != "auto" and self.order > self.max_order:
             set_(self, "max_order", int(self.order))
         if self.discard_periods < 0:
             raise ValueError(f"discard_periods must be >= 0; got {self.discard_periods}")
+
+    def line_counts(self, data: Measurement) -> tuple[int, int]:
+        """Analysis lines N of ``line_set`` and harmonic lines N_s of the period in the band.
+
+        Parameters
+        ----------
+        data : Measurement
+            The measurement (per realisation counts of its kept record).
+
+        Returns
+        -------
+        (int, int)
+            N and N_s; N = N_s for ``"excited"``, about the kept periods times N_s for
+            ``"all"``.
+        """
+        signal = band_lines(data.period_length, data.fs, self.band).size
+        if self.line_set == "excited":
+            return signal, signal
+        samples = data.n_samples - data.period_length * self.discard_periods
+        return band_lines(samples, data.fs, self.band).size, signal
+
+    def resolved(self, measurement: Measurement) -> IdentificationSettings:
+        """These settings with ``block_rows="auto"`` replaced by its count for a measurement.
+
+        Parameters
+        ----------
+        measurement : Measurement
+            The measurement to identify (channels selected as ``inputs`` / ``outputs`` say).
+
+        Returns
+        -------
+        IdentificationSettings
+            ``self`` when block_rows is explicit; otherwise a copy with the count of
+            :func:`fnsi.subspace.auto_block_rows` (raised to what an explicit order needs).
+        """
+        if self.block_rows != "auto":
+            return self
+        data = measurement.select(self.inputs, self.outputs)
+        extended = data.n_inputs + sum(e.n_basis for e in self.elements)
+        order = None if self.order == "auto" else int(self.order)
+        i = auto_block_rows(self.line_counts(data)[1], data.n_realisations, extended,
+                            data.n_outputs, order=order)
+        return dataclasses.replace(self, block_rows=i)
 
     def to_json(self) -> dict:
         """JSON-ready settings."""
@@ -148,9 +210,15 @@ class IdentificationResult:
         Discrete-time extended model of the chosen order.
     order : int
     modal : ModalTable
-        Physical modes inside the band margins (:func:`fnsi.modal.modal_table`).
+        Physical modes inside the band margins (:func:`fnsi.modal.modal_table`), with
+        ``confirmed`` flags from the stabilisation diagram (None when no higher order of
+        the diagram follows the order). With ``order="auto"`` only the confirmed modes:
+        the modes the automatic choice keeps (:func:`fnsi.stabilisation.choose_order`);
+        with an explicit order every physical pole, flagged.
     coefficients : tuple of Coefficient
-        mu_j(omega) of every basis function, with quality criteria.
+        mu_j(omega) of every basis function, with the least-squares estimate over the band
+        (weighted by the power of each basis function, see :class:`fnsi.modal.Coefficient`)
+        and quality criteria.
     stabilisation : StabilisationDiagram or None
     stiffness : tuple of StiffnessCurve
         Force against relative displacement (velocity) over the measured range, one per
@@ -180,8 +248,10 @@ class IdentificationResult:
             "order": self.order,
             "modes": [
                 {"frequency_hz": float(f), "damping_ratio": float(z),
-                 "shape": np.column_stack((s.real, s.imag)).tolist()}
-                for f, z, s in zip(m.frequencies, m.damping_ratios, m.shapes, strict=True)
+                 "shape": np.column_stack((s.real, s.imag)).tolist(),
+                 "confirmed": None if m.confirmed is None else bool(m.confirmed[k])}
+                for k, (f, z, s) in enumerate(zip(m.frequencies, m.damping_ratios, m.shapes,
+                                                  strict=True))
             ],
             "output_names": list(m.output_names),
             "coefficients": [c.to_json() for c in self.coefficients],
@@ -210,10 +280,12 @@ class _Clock:
             self.progress(fraction, message)
 
 
-def _max_order(settings: IdentificationSettings, n_outputs: int) -> int:
+def _max_order(settings: IdentificationSettings, n_outputs: int,
+               block_rows: int | None = None) -> int:
     """Largest order decomposed: max_order, capped at the l (i - 1) the block rows allow
-    (an explicit order above that cap is left to fail the dimension check)."""
-    cap = n_outputs * (settings.block_rows - 1)
+    (an explicit order above that cap is left to fail the dimension check). ``block_rows``
+    replaces the settings' count (needed when it is "auto")."""
+    cap = n_outputs * ((settings.block_rows if block_rows is None else block_rows) - 1)
     order = 0 if settings.order == "auto" else int(settings.order)
     return max(min(settings.max_order, cap), order)
 
@@ -238,15 +310,15 @@ def _validate(measurement: Measurement, settings: IdentificationSettings) -> Mea
     for u, y in settings.driving_points:
         data.input_index(u)
         data.output_index(y)
-    samples = data.n_samples - data.period_length * settings.discard_periods
-    record = samples if settings.line_set == "all" else data.period_length
-    n_lines = band_lines(record, data.fs, settings.band).size
+    n_lines, signal_lines = settings.line_counts(data)
     if n_lines == 0:
         raise ValueError(f"no DFT line in the band {settings.band} Hz; widen it")
     q = data.n_inputs + sum(e.n_basis for e in settings.elements)
-    check_dimensions(n_lines, data.n_realisations, q, data.n_outputs, settings.block_rows,
-                     _max_order(settings, data.n_outputs))
-    need = memory_estimate(n_lines, data.n_realisations, q, data.n_outputs, settings.block_rows)
+    block_rows = settings.resolved(data).block_rows
+    check_dimensions(n_lines, data.n_realisations, q, data.n_outputs, block_rows,
+                     _max_order(settings, data.n_outputs, block_rows),
+                     signal_lines=signal_lines)
+    need = memory_estimate(n_lines, data.n_realisations, q, data.n_outputs, block_rows)
     if need > settings.memory_limit_mb * 2**20:
         raise ValueError(f"FNSI would need about {need / 2**20:.0f} MiB, above the limit of "
                          f"{settings.memory_limit_mb:.0f} MiB; reduce block_rows, the band, the "
@@ -310,7 +382,8 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     cov = (noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
            if settings.weighting else None)
     names = data.input_names + tuple(n for e in elements for n in e.basis_names)
-    return Spectra(freq, data.fs, E, Y, names, data.output_names, cov), elements, ranges
+    return (Spectra(freq, data.fs, E, Y, names, data.output_names, cov,
+                    signal_lines=settings.line_counts(data)[1]), elements, ranges)
 
 
 def _choose_order(settings: IdentificationSettings,
@@ -319,8 +392,10 @@ def _choose_order(settings: IdentificationSettings,
         return int(settings.order)
     if diagram is None or diagram.auto_order is None:
         counts = [] if diagram is None else diagram.stable_counts().tolist()
+        confirmed = [] if diagram is None else diagram.confirmed_counts().tolist()
         raise ValueError("no model order stabilises in the band (stable poles per order: "
-                         f"{counts}); give the order explicitly or raise max_order")
+                         f"{counts}; confirmed over the following orders: {confirmed}); give "
+                         "the order explicitly or raise max_order")
     return int(diagram.auto_order)
 
 
@@ -348,7 +423,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     """
     clock = _Clock(progress)
     data = _validate(measurement, settings)
-    clock.done("validation", 0.02, "settings checked")
+    settings = settings.resolved(data)
+    clock.done("validation", 0.02, f"settings checked, {settings.block_rows} block rows")
     spectra, elements, ranges = extended_spectra(data, settings)
     clock.done("spectra_and_bases", 0.2, f"{spectra.n_lines} lines, "
                f"{spectra.inputs.shape[2]} extended inputs")
@@ -375,11 +451,22 @@ def _physical(model: StateSpaceModel, spectra: Spectra, decomposition: SubspaceD
               ranges: list[tuple[float, float]], order: int,
               diagram: StabilisationDiagram | None,
               timings: dict[str, float]) -> IdentificationResult:
-    """Modes, coefficients and stiffness curves of an identified model (stage 6)."""
+    """Modes, coefficients and stiffness curves of an identified model (stage 6).
+
+    The modes come from the diagram when a higher order follows the order there (same A
+    and C), with their confirmed flags; at the automatic order only the confirmed ones are
+    kept.
+    """
     points: Mapping[str, str] | None = (dict(settings.driving_points)
                                         if settings.driving_points else None)
-    modal = modal_table(model.A, model.C, model.fs, model.output_names, band=settings.band)
-    coefficients = nonlinear_coefficients(model, spectra.frequencies, points)
+    if diagram is not None and order in diagram.orders[:-1]:
+        modal = diagram.at(order).modes
+        if settings.order == "auto":
+            modal = modal.subset(modal.confirmed)
+    else:
+        modal = modal_table(model.A, model.C, model.fs, model.output_names, band=settings.band)
+    coefficients = nonlinear_coefficients(model, spectra.frequencies, points,
+                                          np.mean(np.abs(spectra.inputs) ** 2, axis=0))
     curves = []
     for index, (element, span) in enumerate(zip(elements, ranges, strict=True)):
         own = [c for c in coefficients if c.element == index]

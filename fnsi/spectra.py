@@ -62,6 +62,11 @@ class Spectra:
         Names of the q input and l output columns.
     noise_covariance : ndarray, shape (N, l, l), complex, or None
         Noise covariance of one realisation's output spectrum on each line.
+    signal_lines : int or None
+        Lines per realisation that carry the periodic signal: the harmonics of the period
+        in the band (the ``"excited"`` lines). With ``"all"`` lines of P periods, N is
+        about P times larger and the other lines hold noise only. None: every line does.
+        The dimension rule of :func:`fnsi.subspace.check_dimensions` counts these.
     """
 
     frequencies: np.ndarray
@@ -71,6 +76,7 @@ class Spectra:
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
     noise_covariance: np.ndarray | None = None
+    signal_lines: int | None = None
 
     @property
     def z(self) -> np.ndarray:
@@ -309,7 +315,8 @@ def output_spectra(measurement: Measurement, band: tuple[float, float], *,
     Returns
     -------
     Spectra
-        Inputs: the m forces; outputs: displacement spectra.
+        Inputs: the m forces; outputs: displacement spectra; ``signal_lines``: the
+        harmonic lines of the period in the band.
 
     Examples
     --------
@@ -331,4 +338,5 @@ def output_spectra(measurement: Measurement, band: tuple[float, float], *,
     cov = (noise_covariance(displacement, periods, measurement.fs, band, line_set)
            if noise else None)
     return Spectra(freq, measurement.fs, U, Y, measurement.input_names,
-                   measurement.output_names, cov)
+                   measurement.output_names, cov,
+                   band_lines(measurement.period_length, measurement.fs, band).size)

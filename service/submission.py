@@ -20,7 +20,8 @@ def check_dimensions(summary: dict, request: IdentificationRequest,
     the dataset summary so the API never loads the arrays (ValueError naming the fix).
 
     Mirrors ``fnsi.identification`` validation: band within Nyquist, periods left after
-    the transient, enough lines for the block rows and order, working memory.
+    the transient, block rows (``"auto"`` resolved as the library does), enough lines
+    for them and the order (harmonic lines for periodic data), working memory.
     """
     fs, periods, length = summary["fs"], summary["periods"], summary["period_length"]
     check_band(request.band, fs)
@@ -35,15 +36,21 @@ def check_dimensions(summary: dict, request: IdentificationRequest,
     n_lines = band_lines(record, fs, request.band).size
     if n_lines == 0:
         raise ValueError(f"no DFT line in the band {list(request.band)} Hz; widen it")
+    signal = band_lines(length, fs, request.band).size
+    realisations = summary["realisations"]
     n_outputs = len(request.outputs or summary["outputs"])
     n_extended = len(request.inputs or summary["inputs"]) + sum(
         NonlinearElement.from_json(e.model_dump(mode="json")).n_basis for e in request.elements)
-    dimensions = (n_lines, summary["realisations"], n_extended, n_outputs, request.block_rows)
+    block_rows = (subspace.auto_block_rows(
+        signal, realisations, n_extended, n_outputs,
+        order=None if request.order == "auto" else request.order)
+        if request.block_rows == "auto" else request.block_rows)
+    dimensions = (n_lines, realisations, n_extended, n_outputs, block_rows)
     # as fnsi.identification: "auto" decomposes up to max_order capped at l (i - 1), so
     # only an explicit order can be too large for the block rows
-    cap = n_outputs * (request.block_rows - 1)
+    cap = n_outputs * (block_rows - 1)
     order = min(request.max_order, cap) if request.order == "auto" else request.order
-    subspace.check_dimensions(*dimensions, order)
+    subspace.check_dimensions(*dimensions, order, signal_lines=signal)
     need = subspace.memory_estimate(*dimensions)
     if need > memory_limit_mb * 2**20:
         raise ValueError(f"FNSI would need about {need / 2**20:.0f} MiB, above the limit of "

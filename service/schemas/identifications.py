@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -12,6 +12,7 @@ from pydantic import (
     StrictBool,
     StrictFloat,
     StrictInt,
+    WithJsonSchema,
     model_serializer,
     model_validator,
 )
@@ -52,8 +53,10 @@ class NonlinearElementSpec(BaseModel):
         None, max_length=MAX_BASIS + 1, description="spline: increasing knot abscissas "
         "[length], 0 strictly inside an interval (paper Eq. 19-22).")
     intervals: StrictInt | None = Field(None, ge=2, le=MAX_BASIS,
-                                  description="spline: number of uniform "
-                                  "intervals over the measured range (automatic knots).",
+                                  description="spline: number of intervals over the "
+                                  "measured range (automatic knots: one interval over the "
+                                  "inner half of the excursion around equilibrium, the "
+                                  "others evenly over the outer halves).",
                                   examples=[13])
     width: StrictFloat | None = Field(None, gt=0, description="coulomb_friction: velocity "
                                 "smoothing width [length/s], g = tanh(v / width).")
@@ -73,6 +76,12 @@ class NonlinearElementSpec(BaseModel):
         return {k: v for k, v in handler(self).items() if v is not None or k == "ref"}
 
 
+#: The word "auto" in an integer-or-"auto" field. Published as a one-value string enum
+#: rather than the ``const`` pydantic emits for a Literal: openapi-python-client parses an
+#: integer-or-const union as the const only, so generated clients could not send integers.
+Auto = Annotated[Literal["auto"], WithJsonSchema({"type": "string", "enum": ["auto"]})]
+
+
 class IdentificationRequest(BaseModel):
     """An FNSI identification of one dataset (paper Section II)."""
 
@@ -90,9 +99,13 @@ class IdentificationRequest(BaseModel):
                                       description="Output channels to use; default all.")
     band: tuple[StrictFloat, StrictFloat] = Field(description="Analysis band [Hz], low < high.",
                                       examples=[[5.0, 50.0]])
-    block_rows: StrictInt = Field(description="Block rows i of the data matrices (Eq. 10); "
-                            "must exceed order / outputs.", ge=1, le=10_000, examples=[100])
-    order: StrictInt | Literal["auto"] = Field(
+    block_rows: Annotated[StrictInt, Field(ge=2, le=10_000)] | Auto = Field(
+        "auto", description="Block rows i of the data matrices (Eq. 10), or \"auto\": the "
+        "largest i with (inputs + basis functions + outputs) i <= harmonic lines of the "
+        "period in the band, at most 100. Must exceed order / outputs; with periodic data "
+        "(inputs + basis functions) i + order may not exceed twice the harmonic lines.",
+        examples=["auto", 100])
+    order: StrictInt | Auto = Field(
         "auto", description="Model order n, or \"auto\" to choose it from the stabilisation "
         "diagram.", examples=["auto", 20])
     max_order: StrictInt = Field(60, ge=2, le=2000, description="Highest order of the "

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from fnsi.identification import IdentificationSettings, identify
+from fnsi.identification import IdentificationSettings, extended_spectra, identify
 from fnsi.nonlinear import NonlinearElement
 from fnsi.stiffness import curve_error_percent
 
@@ -160,7 +160,44 @@ def test_auto_order_progress_and_json(cubic):
     assert set(result.timings) >= {"decomposition", "stabilisation", "model", "physical"}
     payload = json.loads(json.dumps(result.to_json()))
     assert payload["order"] == 6 and len(payload["modes"]) == 3
+    # the automatic order keeps the confirmed modes only
+    assert all(mode["confirmed"] is True for mode in payload["modes"])
     assert payload["coefficients"][0]["method"] == "driving point"
+    assert payload["stabilisation"]["confirmation"] == 1
+
+
+def test_explicit_order_keeps_every_pole_flagged(cubic):
+    _, element, data = cubic
+    settings = IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=12,
+                                      max_order=16, elements=(unknown(element),))
+    result = identify(data, settings)
+    modal = result.modal
+    assert modal.confirmed is not None and modal.confirmed.shape == (modal.n_modes,)
+    # the three modes of the chain are confirmed; the extra poles of order 12 are listed
+    # but not confirmed, so the user sees what the automatic choice would drop
+    assert np.sum(modal.confirmed) == 3 and modal.n_modes > 3
+    assert [m["confirmed"] for m in result.to_json()["modes"]] == modal.confirmed.tolist()
+    # no verdict for an order outside the diagram, or at its top (nothing above it)
+    for order, max_order in ((7, 16), (16, 16)):
+        beyond = identify(data, dataclasses.replace(settings, order=order, max_order=max_order))
+        assert beyond.modal.confirmed is None
+        assert beyond.to_json()["modes"][0]["confirmed"] is None
+
+
+def test_coefficient_weights_follow_the_basis_power(cubic):
+    _, element, data = cubic
+    settings = IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                      elements=(unknown(element),))
+    result = identify(data, settings)
+    (mu,) = result.coefficients
+    # element to ground: H b_j is the whole driving-point column, weight P_j ||H b_j||^2
+    spectra, _, _ = extended_spectra(data, result.settings)
+    power = np.mean(np.abs(spectra.inputs[:, :, 1]) ** 2, axis=0)
+    column = result.model.frequency_response(spectra.frequencies)[:, :, 0]
+    np.testing.assert_allclose(mu.weights, power * np.sum(np.abs(column) ** 2, axis=1),
+                               rtol=1e-10)
+    normalised = mu.weights / mu.weights.sum()
+    assert mu.mean_real == pytest.approx(np.sum(normalised * mu.values.real))
 
 
 def test_progress_can_cancel(cubic):

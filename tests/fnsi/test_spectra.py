@@ -30,6 +30,20 @@ def test_dft_scaling_of_eq_6_and_excited_lines():
     assert full.n_lines == periods * excited.n_lines  # half-open band [4, 6) Hz
 
 
+def test_signal_lines_are_the_harmonics_of_the_period():
+    fs, M, periods = 100.0, 200, 4
+    u = np.tile(np.random.default_rng(0).standard_normal(M), periods)
+    data = Measurement.from_arrays(u, u[:, None], fs, periods=periods)
+    full = output_spectra(data, (5.0, 45.0), discard_periods=1, line_set="all")
+    excited = output_spectra(data, (5.0, 45.0), discard_periods=1, line_set="excited")
+    # 0.5 Hz harmonics in [5, 45) Hz; all lines of 3 kept periods are 3 times as many,
+    # two thirds of them zero for a periodic input
+    assert full.signal_lines == excited.signal_lines == excited.n_lines == 80
+    assert full.n_lines == 240
+    harmonic = np.abs(full.inputs[0, :, 0]) > 1e-9 * np.abs(full.inputs).max()
+    assert harmonic.sum() == full.signal_lines
+
+
 @pytest.mark.parametrize("quantity,times", [("velocity", 1), ("acceleration", 2)])
 def test_displacement_from_velocity_or_acceleration_is_exact(quantity, times):
     fs, n = 64.0, 256

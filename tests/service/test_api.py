@@ -36,7 +36,8 @@ def test_validation_error_lists_fields_without_echoing_values(client):
     assert response.headers["content-type"] == PROBLEM
     problem = response.json()
     assert secret not in response.text
-    assert any(e["loc"][-1] == "block_rows" for e in problem["errors"])
+    # a union type adds the branch that failed to the location
+    assert any("block_rows" in e["loc"] for e in problem["errors"])
     assert "block_rows" in problem["detail"]
 
 
