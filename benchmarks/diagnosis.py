@@ -9,7 +9,13 @@ Prints the stage timings, the ranked candidates and the error history; the last 
 one JSON object::
 
     {"diagnosis_s": ..., "top_effect": ..., "top_dof": ..., "top_ref": ...,
-     "nrmse_before_pct": ..., "nrmse_after_pct": ..., "noise_floor_pct": ...}
+     "nrmse_before_pct": ..., "nrmse_after_pct": ..., "noise_floor_pct": ...,
+     "stop_rank": ..., "true_stop_nrmse_pct": ...}
+
+``stop_rank`` is the screening rank (1: best) of the NC2w_Z-NC2b_Z location and
+``true_stop_nrmse_pct`` the validation NRMSE of revision 0 with the true stop added
+(clearance and gap from the simulation's truth): what a correct diagnosis reaches with
+these identification settings.
 
 Run: ``.venv/bin/python benchmarks/diagnosis.py [--periods 8 --samples-per-period 30000]``
 """
@@ -20,8 +26,9 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 
-from fnsi.diagnosis import DiagnosisSettings
+from fnsi.diagnosis import DiagnosisSettings, Location
 from fnsi.identification import IdentificationSettings
 from fnsi.smallsat import simulate_preset
 from fnsi.study import Study
@@ -81,6 +88,13 @@ def main() -> int:
         print(f"  {c.effect.value:<20} {where:<18} {c.validation_nrmse_percent:9.3g} %")
     print(diagnosis.summary)
 
+    stop = next(e for e in truth.elements if (e.dof, e.ref) == ("NC2w_Z", "NC2b_Z"))
+    stop_rank = 1 + [s.location for s in diagnosis.locations].index(
+        Location(stop.dof, stop.ref))
+    true_stop = study.evaluate([replace(stop, coefficients=None)], args.order)
+    print(f"{stop.name} ranks {stop_rank} of {len(diagnosis.locations)} in the screening; "
+          f"with the true stop the validation NRMSE is {true_stop.nrmse_percent:.3g} %")
+
     top = diagnosis.candidates[0]
     if top.element is not None and top.beats_noise_floor:
         study.add_revision(add=[top.element], note=top.effect.value)
@@ -96,6 +110,8 @@ def main() -> int:
         "nrmse_before_pct": diagnosis.nrmse_before_percent,
         "nrmse_after_pct": last.nrmse_percent,
         "noise_floor_pct": study.noise_floor_percent,
+        "stop_rank": stop_rank,
+        "true_stop_nrmse_pct": true_stop.nrmse_percent,
     }))
     return 0
 

@@ -9,6 +9,7 @@ from scipy import optimize, signal
 from fnsi.nonlinear import NonlinearElement
 from fnsi.simulation import SimulationDivergedError, simulate, simulate_periodic
 from fnsi.statespace import StateSpaceModel
+from fnsi.subspace import SubspaceDecomposition, decompose
 
 FS = 1000.0
 OMEGA = 2 * np.pi * 5.0      # SDOF natural frequency [rad/s], unit mass
@@ -225,17 +226,16 @@ def test_identified_model_reproduces_the_measurement_near_the_noise_floor():
     assert np.all(nrmse["nonlinear"] < nrmse["linear"] / 10)
 
 
-def _smallsat_true_model(data, stop: NonlinearElement, band: tuple[float, float],
-                         order: int) -> StateSpaceModel:
-    """Discrete model of order ``order`` fitted to the true extended FRF of SmallSat.
+def _smallsat_true_decomposition(data, stop: NonlinearElement, band: tuple[float, float],
+                                 max_order: int) -> SubspaceDecomposition:
+    """FNSI decomposition of the true extended FRF of SmallSat (models up to ``max_order``).
 
     H^e = [H_w, -mu (H_w - H_b)] with H_w, H_b the receptance columns (K - w^2 M + j w C)^-1
-    of forces at the stop's two nodes (Eq. 17), on 0.5 Hz lines in ``band``; the FNSI
-    decomposition of that exact FRF times a random extended input gives the model.
+    of forces at the stop's two nodes (Eq. 17), on 0.5 Hz lines in ``band``, times a
+    random extended input: the data FNSI would see without noise or sampling effects.
     """
     from fnsi.smallsat import smallsat_model
     from fnsi.spectra import Spectra
-    from fnsi.subspace import decompose
 
     structure = smallsat_model()
     rows = [structure.dof_index(name) for name in data.output_names]
@@ -252,20 +252,27 @@ def _smallsat_true_model(data, stop: NonlinearElement, band: tuple[float, float]
     spectra = Spectra(frequencies, data.fs, E, np.einsum("klq,rkq->rkl", H, E),
                       (*data.input_names, stop.name), data.output_names)
     element = NonlinearElement("clearance", stop.dof, stop.ref, gap=stop.gap)
-    return decompose(spectra, block_rows=20, max_order=order, n_inputs=1,
-                     elements=(element,)).model(order)
+    return decompose(spectra, block_rows=20, max_order=max_order, n_inputs=1,
+                     elements=(element,))
 
 
 def test_stiff_smallsat_contact_simulates_to_the_floor_with_its_out_of_band_dynamics():
     """SmallSat single (Section IV.A): the implicit feed-through handles the stiff NC2-Z stop.
 
     The stop (slope 100) is about ten times stiffer than the structure between its nodes
-    (static relative flexibility 0.107), and the contact force excites heavily damped
-    WEMS modes at 55-100 Hz. A model holding those modes (order 24 on 5-150 Hz)
-    reproduces the Newmark record to the noise floor, so the simulation is not what limits
-    identified models; a model of the in-band modes only (order 8, fitted to the same
-    truth in 5-50 Hz) lumps them into D^e and misses the contact path to NC2b_Z by ~10 %,
-    which the stiff loop turns into errors of 5 % and more.
+    (static relative flexibility 0.107), and the contact force excites modes beyond the
+    band: 55 Hz, and heavily damped WEMS modes at 75 Hz (71 %) and 157 Hz (43 %). A model
+    holding those modes (order 24 on 5-150 Hz) reproduces the Newmark record to the noise
+    floor, so the simulation is not what limits identified models; a model of the in-band
+    modes only (order 8, fitted to the same truth in 5-50 Hz) lumps them into D^e and
+    misses the contact path to NC2b_Z by ~10 %, which the stiff loop turns into errors of
+    5 % and more.
+
+    The exact in-band response does determine those modes (order 16 on 5-50 Hz finds
+    them), but only through singular values below 1e-4 of the largest: FNSI on the
+    records cannot recover them, because the 0.5 % noise and even the aliasing of the
+    contact force sampled at 2.5 kHz (the records depart from the exact in-band response
+    by 3.4e-4) are larger (issue 7).
     """
     from fnsi.smallsat import simulate_preset
     from fnsi.validation import compare
@@ -273,13 +280,25 @@ def test_stiff_smallsat_contact_simulates_to_the_floor_with_its_out_of_band_dyna
     data, truth = simulate_preset("single", periods=4, samples_per_period=7500,
                                   outputs=("NC2w_Z", "NC2b_Z", "W_Z"), seed=2)
     stop = next(e for e in truth.elements if (e.dof, e.ref) == ("NC2w_Z", "NC2b_Z"))
-    full = compare(_smallsat_true_model(data, stop, (5.0, 150.0), 24), data,
-                   discard_periods=1, band_high=50.0).errors
-    in_band = compare(_smallsat_true_model(data, stop, (5.0, 50.0), 8), data,
-                      discard_periods=1, band_high=50.0).errors
+    wide = _smallsat_true_decomposition(data, stop, (5.0, 150.0), 24)
+    in_band = _smallsat_true_decomposition(data, stop, (5.0, 50.0), 16)
+    models = {24: wide.model(24), 8: in_band.model(8), 16: in_band.model(16)}
+    errors = {order: compare(model, data, discard_periods=1, band_high=50.0).errors
+              for order, model in models.items()}
+    floor = errors[8].noise_floor_percent
     # observed 1.0-1.13 x the floor over seeds of the random input and block rows 20-30;
     # 1.5 x leaves room for the noise of one realisation
-    assert np.all(full.nrmse_percent < 1.5 * full.noise_floor_percent)
+    assert np.all(errors[24].nrmse_percent < 1.5 * floor)
     # observed 200-350 x the floor here (25-35 x on 5 s periods): in-band modes alone
     # cannot meet issue 7's 3 x
-    assert np.all(in_band.nrmse_percent > 10 * in_band.noise_floor_percent)
+    assert np.all(errors[8].nrmse_percent > 10 * floor)
+    # observed 3.3-3.8 x per channel: the out-of-band modes, found from the exact in-band
+    # response, bring the in-band model close to the floor
+    poles = np.log(np.linalg.eigvals(models[16].A)) * data.fs
+    frequencies = np.abs(poles) / (2 * np.pi)
+    for mode in (55.0, 74.9, 157.4):
+        assert np.min(np.abs(frequencies - mode)) < 0.01 * mode
+    assert np.all(errors[16].nrmse_percent < 5 * floor)
+    # ... through states 7-16 whose singular values are at most 4.8e-5 of the largest
+    s = in_band.singular_values
+    assert np.all(s[6:16] < 1e-4 * s[0])
