@@ -277,6 +277,7 @@ def plot_stiffness(
     *,
     truths: Sequence[NonlinearElement | None] | None = None,
     title: str = "Nonlinear restoring forces",
+    units: tuple[str, str] = ("m", "N"),
 ) -> bytes:
     """Identified restoring-force curves, with the exact ones when known (Figures 10, 12).
 
@@ -287,7 +288,9 @@ def plot_stiffness(
     truths : sequence of NonlinearElement or None, optional
         True element (with coefficients) per curve, drawn in black over the same range.
     title : str
-        Figure title.
+        Figure title (wrapped to the figure width).
+    units : (str, str)
+        Length and force units of the data, for the axis labels (velocity: length/s).
 
     Returns
     -------
@@ -316,15 +319,16 @@ def plot_stiffness(
             knots = np.asarray(element.knots)
             ax.plot(knots, element.basis(knots) @ np.asarray(element.coefficients), "o",
                     mfc="none", color="tab:blue", ms=5, label="knots")
-        unit = "[m/s]" if curve.variable == "velocity" else "[m]"
+        length, force = units
+        unit = f"[{length}/s]" if curve.variable == "velocity" else f"[{length}]"
         ax.set_xlabel(f"Relative {curve.variable} {unit}")
-        ax.set_ylabel("Restoring force [N]")
+        ax.set_ylabel(f"Restoring force [{force}]")
         ax.set_title(element.name)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small")
     for ax in axes[len(curves):]:
         ax.set_visible(False)
-    figure.suptitle(title)
+    figure.suptitle(title, wrap=True)
     return png_bytes(figure)
 
 
