@@ -104,9 +104,18 @@ class IdentificationSettings:
         Evaluate the basis functions on the period-averaged displacement (and velocity),
         repeated over the kept periods. The steady state is periodic, so the average is
         the best estimate of the noise-free motion: the noise variance entering the
-        bases drops by the number of kept periods, which removes most of the bias that
-        noisy bases cause (errors in variables: the noise of E is correlated with that
-        of Y). The output spectra keep their own noise either way.
+        bases drops by the number of kept periods, which shrinks the attenuation that
+        noisy bases cause (errors in variables) and their scatter. The output spectra
+        keep their own noise either way.
+    compensate_basis_noise : bool
+        Bias-compensated least squares for B^e and D^e (:func:`fnsi.subspace.
+        input_matrices`): the basis functions are computed from the noisy measured outputs,
+        and their noise attenuates the coefficients (errors in variables; the nonlinear
+        force is largely coherent with the input, which magnifies it). The noise
+        covariance of the basis spectra, and with the outputs, comes from the
+        period-to-period spread of the bases evaluated period by period (to first order
+        the average's noise is the mean of theirs) and is subtracted from the normal
+        equations. Needs two kept periods (skipped with one).
     memory_limit_mb : float
         Refuse problems whose FNSI working memory estimate exceeds this [MiB].
     """
@@ -123,6 +132,7 @@ class IdentificationSettings:
     weighting: bool = False
     driving_points: tuple[tuple[str, str], ...] = ()
     average_bases: bool = True
+    compensate_basis_noise: bool = True
     memory_limit_mb: float = 8192.0
 
     def __post_init__(self) -> None:
@@ -376,14 +386,28 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     else:
         xb, vb = x, v
     elements, g, ranges = _basis_series(settings.elements, data, xb, vb)
-    freq, E = transform(np.concatenate([u, g], axis=2), periods, data.fs, settings.band,
-                        settings.line_set)
+    E = np.concatenate([u, g], axis=2)
+    freq, spectrum = transform(E, periods, data.fs, settings.band, settings.line_set)
     _, Y = transform(x, periods, data.fs, settings.band, settings.line_set)
-    cov = (noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
-           if settings.weighting else None)
+    output_cov = input_cov = None
+    compensate = settings.compensate_basis_noise and periods >= 2 and g.shape[2] > 0
+    if compensate:
+        # the bases of each period, whose spread is the noise the average carries
+        raw = E if not settings.average_bases else np.concatenate(
+            [u, _basis_series(elements, data, x, v)[1]], axis=2)
+        averaged = np.repeat([False, settings.average_bases, False],
+                             [u.shape[2], g.shape[2], x.shape[2]])
+        q = E.shape[2]
+        cov = noise_covariance(np.concatenate([raw, x], axis=2), periods, data.fs,
+                               settings.band, settings.line_set, averaged=averaged)
+        input_cov = cov[:, :q]
+        output_cov = cov[:, q:, q:] if settings.weighting else None
+    elif settings.weighting:
+        output_cov = noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
     names = data.input_names + tuple(n for e in elements for n in e.basis_names)
-    return (Spectra(freq, data.fs, E, Y, names, data.output_names, cov,
-                    signal_lines=settings.line_counts(data)[1]), elements, ranges)
+    return (Spectra(freq, data.fs, spectrum, Y, names, data.output_names, output_cov,
+                    signal_lines=settings.line_counts(data)[1],
+                    input_noise_covariance=input_cov), elements, ranges)
 
 
 def _choose_order(settings: IdentificationSettings,

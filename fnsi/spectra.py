@@ -67,6 +67,12 @@ class Spectra:
         in the band (the ``"excited"`` lines). With ``"all"`` lines of P periods, N is
         about P times larger and the other lines hold noise only. None: every line does.
         The dimension rule of :func:`fnsi.subspace.check_dimensions` counts these.
+    input_noise_covariance : ndarray, shape (N, q, q + l), complex, or None
+        Noise covariance of one realisation's extended-input spectrum on each line, with
+        itself and with the outputs: [E[dE dE^H], E[dE dY^H]]. Basis functions computed
+        from measured outputs carry their noise (errors in variables); the least squares
+        for B^e and D^e subtract its expected contribution (:func:`fnsi.subspace.
+        input_matrices`).
     """
 
     frequencies: np.ndarray
@@ -77,6 +83,7 @@ class Spectra:
     output_names: tuple[str, ...]
     noise_covariance: np.ndarray | None = None
     signal_lines: int | None = None
+    input_noise_covariance: np.ndarray | None = None
 
     @property
     def z(self) -> np.ndarray:
@@ -264,19 +271,27 @@ def transform(x: np.ndarray, periods: int, fs: float, band: tuple[float, float],
 
 
 def noise_covariance(y: np.ndarray, periods: int, fs: float, band: tuple[float, float],
-                     line_set: str) -> np.ndarray:
-    """Output noise covariance per line from the period-to-period spread.
+                     line_set: str, *, averaged: np.ndarray | None = None) -> np.ndarray:
+    """Noise covariance per line from the period-to-period spread.
 
     Parameters
     ----------
-    y : ndarray, shape (R, samples, l)
-        Kept record of ``periods`` (>= 2) whole periods.
+    y : ndarray, shape (R, samples, c)
+        Kept record of ``periods`` (>= 2) whole periods (outputs, or any channels whose
+        spectra are analysed, e.g. basis functions evaluated period by period).
     periods, fs, band, line_set
         As in :func:`transform`.
+    averaged : ndarray of bool, shape (c,), optional
+        Channels whose analysed spectrum is that of the period-averaged record repeated
+        over the periods (the basis functions of ``average_bases``), while ``y`` holds
+        their period-by-period values. Their noise is that of the average: on the
+        harmonic lines of the period only, so with ``line_set="all"`` their rows and
+        columns are zero on the other lines (on the harmonic lines the 1/sqrt(P M)
+        scaling of the repeated average gives back the single-period covariance).
 
     Returns
     -------
-    ndarray, shape (N, l, l), complex
+    ndarray, shape (N, c, c), complex
         Covariance of one realisation's spectrum on each line of :func:`transform`
         (pooled over the realisations).
     """
@@ -293,7 +308,11 @@ def noise_covariance(y: np.ndarray, periods: int, fs: float, band: tuple[float, 
         return cov / periods
     all_lines = band_lines(n, fs, band)
     nearest = np.clip(np.rint(all_lines / periods).astype(int), lines[0], lines[-1])
-    return cov[np.searchsorted(lines, nearest)]
+    cov = cov[np.searchsorted(lines, nearest)]
+    if averaged is not None:
+        quiet = np.asarray(averaged, dtype=bool)[None, :] & (all_lines % periods != 0)[:, None]
+        cov = np.where(quiet[:, :, None] | quiet[:, None, :], 0.0, cov)
+    return cov
 
 
 def output_spectra(measurement: Measurement, band: tuple[float, float], *,

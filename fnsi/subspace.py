@@ -368,7 +368,8 @@ class SubspaceDecomposition:
         """
         A, C = self.state_matrices(order)
         sp = self.spectra
-        B, D = input_matrices(A, C, sp.inputs, sp.outputs, sp.z)
+        B, D = input_matrices(A, C, sp.inputs, sp.outputs, sp.z,
+                              noise_covariance=sp.input_noise_covariance)
         return StateSpaceModel(
             A=A, B=B / self.input_scale, C=C, D=D / self.input_scale, fs=sp.fs,
             input_names=sp.input_names[: self.n_inputs], output_names=sp.output_names,
@@ -436,7 +437,10 @@ def decompose(spectra: Spectra, *, block_rows: int, max_order: int, weighting: b
         raise ValueError(f"extended inputs {dead} are zero on every analysis line (an "
                          "element never activated, or an input without excitation in the "
                          "band); remove them")
-    scaled = dataclasses.replace(spectra, inputs=E / scale)
+    noise = spectra.input_noise_covariance
+    if noise is not None:
+        noise = noise / scale[None, :, None] / np.concatenate([scale, np.ones(n_out)])
+    scaled = dataclasses.replace(spectra, inputs=E / scale, input_noise_covariance=noise)
     k = min(max_order + OVERSAMPLING, n_out * block_rows)
     Z = _projected_outputs((E / scale).reshape(R * N, q), Y.reshape(R * N, n_out),
                            np.tile(spectra.z, R), block_rows,
@@ -452,13 +456,23 @@ def decompose(spectra: Spectra, *, block_rows: int, max_order: int, weighting: b
 
 
 def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
-                   z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                   z: np.ndarray, *, noise_covariance: np.ndarray | None = None,
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """B^e and D^e minimising sum_k ||Y(k) - (C (z_k I - A)^-1 B^e + D^e) E(k)||^2.
 
     Real unknowns theta = vec([B; D]) with normal equations Re(sum_k Phi_k^H Phi_k) theta =
     Re(sum_k Phi_k^H Y(k)), Phi_k = E(k)^T kron [C (z_k I - A)^-1, I]. With A = V diag(lam)
     V^-1, Ct = C V, W = V^-1 and d_kr = 1 / (z_k - lam_r), every block reduces to sums over
     the lines of products E_a^* E_b d_kr^* d_ks, formed by matrix products.
+
+    Bias compensation (errors in variables): when E = E_0 + dE carries noise (basis
+    functions of measured outputs), E[conj(E) E^T] = conj(E_0) E_0^T + conj(S_k), S_k =
+    E[dE dE^H], inflates the normal matrix and attenuates the coefficients of the noisy
+    columns (the nonlinear force is largely coherent with the input, so little of the
+    basis power is its own). With ``noise_covariance`` the products E_a^* E_b are
+    replaced by their noise-free expectations E_a^* E_b - conj(S_k)_ab, and E_a^* Y_i by
+    E_a^* Y_i - conj(E[dE dY^H])_ai: the bias-compensated least squares of Stoica and
+    Soderstrom (1982), consistent as the lines grow.
 
     Parameters
     ----------
@@ -470,6 +484,10 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
         Output spectra.
     z : ndarray, shape (N,), complex
         z_k of the lines.
+    noise_covariance : ndarray, shape (N, q, q + l), complex, optional
+        Noise covariance of one realisation's E(k) with itself and with Y(k),
+        [E[dE dE^H], E[dE dY^H]] (``Spectra.input_noise_covariance``); compensated when
+        given.
 
     Returns
     -------
@@ -480,9 +498,13 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
     lam, V = np.linalg.eig(A)
     W = np.linalg.inv(V)
     Ct = C @ V
+    realisations = E.shape[0]
     E = E.reshape(-1, q)
     Y = Y.reshape(-1, n_out)
-    zz = np.tile(z, E.shape[0] // z.shape[0])
+    zz = np.tile(z, realisations)
+    # conjugated, as the products E^* E^T and E^* Y^T of the normal equations
+    noise = (None if noise_covariance is None
+             else np.tile(noise_covariance.conj(), (realisations, 1, 1)))
     T = np.zeros((q * q, n * n), dtype=complex)  # sum E_a^* E_b d_r^* d_s
     S = np.zeros((q * q, n), dtype=complex)  # sum E_a^* E_b d_r^*
     P = np.zeros(q * q, dtype=complex)  # sum E_a^* E_b
@@ -491,12 +513,18 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
     for start in range(0, E.shape[0], CHUNK_LINES):
         sl = slice(start, start + CHUNK_LINES)
         e, d = E[sl], 1.0 / (zz[sl, None] - lam[None, :])
-        F = (e.conj()[:, :, None] * e[:, None, :]).reshape(-1, q * q)
+        F = e.conj()[:, :, None] * e[:, None, :]
+        gB += e.conj().T @ (d.conj() * Zy[sl])
+        if noise is not None:
+            F = F - noise[sl, :, :q]
+            gB -= np.einsum("kai,ir,kr->ar", noise[sl, :, q:], Ct.conj(), d.conj())
+        F = F.reshape(-1, q * q)
         T += F.T @ (d.conj()[:, :, None] * d[:, None, :]).reshape(-1, n * n)
         S += F.T @ d.conj()
         P += F.sum(axis=0)
-        gB += e.conj().T @ (d.conj() * Zy[sl])
     gD = E.conj().T @ Y  # (q, n_out)
+    if noise is not None:
+        gD -= noise[:, :, q:].sum(axis=0)
     T = T.reshape(q, q, n, n) * (Ct.conj().T @ Ct)
     S = S.reshape(q, q, n)
     P = P.reshape(q, q)
