@@ -83,6 +83,10 @@ class Truth:
         }
 
 
+#: Band of the measurement noise [Hz] (paper Section III: filtered white noise in 0-100 Hz).
+NOISE_BAND = (0.0, 100.0)
+
+
 def upsample(period: np.ndarray, factor: int) -> np.ndarray:
     """Band-limited periodic upsampling along axis 1 by an integer ``factor``.
 
@@ -171,6 +175,37 @@ def band_noise(shape: tuple[int, int, int], fs: float, band: tuple[float, float]
     return noise / np.sqrt(np.mean(noise**2, axis=1, keepdims=True))
 
 
+def measurement_noise(y: np.ndarray, fs: float, noise_percent: float, reference: int,
+                      kept: slice, band: tuple[float, float], seed: int) -> np.ndarray:
+    """The output noise :func:`acquire` adds: band-limited white noise, step 3 above.
+
+    Parameters
+    ----------
+    y : ndarray, shape (R, samples, l)
+        Noise-free outputs.
+    fs : float
+        Sampling rate [Hz].
+    noise_percent : float
+        Noise RMS on every channel as a percentage of the RMS of channel ``reference``
+        over the ``kept`` samples.
+    reference : int
+        Index of the reference output channel.
+    kept : slice
+        Samples after the transient periods.
+    band : (float, float)
+        Noise band [Hz].
+    seed : int
+        Seed of the noise (numpy's PCG64).
+
+    Returns
+    -------
+    ndarray, shape of ``y``
+        The noise, in the units of ``y``.
+    """
+    level = noise_percent / 100 * np.sqrt(np.mean(y[:, kept, reference] ** 2))
+    return level * band_noise(y.shape, fs, band, np.random.default_rng(seed))
+
+
 def _count_exceedances(element: NonlinearElement, x: np.ndarray) -> int:
     gap_negative, gap_positive = element.gaps
     return int(np.count_nonzero((x > gap_positive) | (x < -gap_negative)))
@@ -179,7 +214,7 @@ def _count_exceedances(element: NonlinearElement, x: np.ndarray) -> int:
 def acquire(model: StructuralModel, excitation: Excitation, *, fs: float = 2500.0,
             fs_int: float = 20000.0, periods: int = 8, outputs=None,
             quantity: str = "displacement", noise_percent: float = 0.5,
-            noise_reference: str | None = None, noise_band: tuple[float, float] = (0.0, 100.0),
+            noise_reference: str | None = None, noise_band: tuple[float, float] = NOISE_BAND,
             discard_periods: int = 2, seed: int = 0,
             progress: Progress | None = None) -> tuple[Measurement, Truth]:
     """Simulate a periodic test of ``model`` and return the noisy measurement and the truth.
@@ -248,8 +283,7 @@ def acquire(model: StructuralModel, excitation: Excitation, *, fs: float = 2500.
     if noise_percent > 0:
         reference = (outputs.index(noise_reference) if noise_reference is not None
                      else int(np.argmax(np.sqrt(np.mean(y[:, kept] ** 2, axis=(0, 1))))))
-        level = noise_percent / 100 * np.sqrt(np.mean(y[:, kept, reference] ** 2))
-        y += level * band_noise(y.shape, fs, noise_band, np.random.default_rng(seed))
+        y += measurement_noise(y, fs, noise_percent, reference, kept, noise_band, seed)
     exceedances = {e.name: _count_exceedances(e, x_elements[:, kept, j])
                    for j, e in enumerate(model.elements)
                    if e.kind is NonlinearityKind.CLEARANCE}
