@@ -35,7 +35,7 @@ from typing import Literal
 
 import numpy as np
 
-from fnsi.measurement import Measurement
+from fnsi.measurement import Layout, Measurement
 from fnsi.modal import Coefficient, ModalTable, modal_table, nonlinear_coefficients
 from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import (
@@ -163,13 +163,13 @@ class IdentificationSettings:
         if self.discard_periods < 0:
             raise ValueError(f"discard_periods must be >= 0; got {self.discard_periods}")
 
-    def line_counts(self, data: Measurement) -> tuple[int, int]:
+    def line_counts(self, data: Measurement | Layout) -> tuple[int, int]:
         """Analysis lines N of ``line_set`` and harmonic lines N_s of the period in the band.
 
         Parameters
         ----------
-        data : Measurement
-            The measurement (per realisation counts of its kept record).
+        data : Measurement or Layout
+            The measurement or its layout (per realisation counts of its kept record).
 
         Returns
         -------
@@ -183,13 +183,14 @@ class IdentificationSettings:
         samples = data.n_samples - data.period_length * self.discard_periods
         return band_lines(samples, data.fs, self.band).size, signal
 
-    def resolved(self, measurement: Measurement) -> IdentificationSettings:
+    def resolved(self, measurement: Measurement | Layout) -> IdentificationSettings:
         """These settings with ``block_rows="auto"`` replaced by its count for a measurement.
 
         Parameters
         ----------
-        measurement : Measurement
-            The measurement to identify (channels selected as ``inputs`` / ``outputs`` say).
+        measurement : Measurement or Layout
+            The measurement to identify, or its layout (channels selected as ``inputs`` /
+            ``outputs`` say).
 
         Returns
         -------
@@ -305,9 +306,32 @@ def _max_order(settings: IdentificationSettings, n_outputs: int,
     return max(min(settings.max_order, cap), order)
 
 
-def _validate(measurement: Measurement, settings: IdentificationSettings) -> Measurement:
-    """Selected channels, checked against the settings before any heavy work."""
-    data = measurement.select(settings.inputs, settings.outputs)
+def check_settings(record: Measurement | Layout, settings: IdentificationSettings,
+                   ) -> IdentificationSettings:
+    """Settings checked against the shape of a record, with ``block_rows`` resolved.
+
+    Everything :func:`identify` refuses before any heavy work: channels, band, periods
+    left after the transient, lines, block rows and order (:func:`fnsi.subspace.
+    check_dimensions`) and the working-memory limit. Only the shape is read, so a
+    :class:`fnsi.measurement.Layout` (e.g. from a stored dataset's summary) will do.
+
+    Parameters
+    ----------
+    record : Measurement or Layout
+        The record to identify, or its layout.
+    settings : IdentificationSettings
+
+    Returns
+    -------
+    IdentificationSettings
+        ``settings`` with ``block_rows="auto"`` replaced by its count.
+
+    Raises
+    ------
+    ValueError
+        What is wrong and what to change.
+    """
+    data = record.select(settings.inputs, settings.outputs)
     check_band(settings.band, data.fs)
     kept = data.periods - settings.discard_periods
     if kept < 1:
@@ -329,7 +353,8 @@ def _validate(measurement: Measurement, settings: IdentificationSettings) -> Mea
     if n_lines == 0:
         raise ValueError(f"no DFT line in the band {settings.band} Hz; widen it")
     q = data.n_inputs + sum(e.n_basis for e in settings.elements)
-    block_rows = settings.resolved(data).block_rows
+    resolved = settings.resolved(data)
+    block_rows = resolved.block_rows
     check_dimensions(n_lines, data.n_realisations, q, data.n_outputs, block_rows,
                      _max_order(settings, data.n_outputs, block_rows),
                      signal_lines=signal_lines)
@@ -338,7 +363,7 @@ def _validate(measurement: Measurement, settings: IdentificationSettings) -> Mea
         raise ValueError(f"FNSI would need about {need / 2**20:.0f} MiB, above the limit of "
                          f"{settings.memory_limit_mb:.0f} MiB; reduce block_rows, the band, the "
                          "outputs or the basis functions")
-    return data
+    return resolved
 
 
 def _basis_series(elements: tuple[NonlinearElement, ...], data: Measurement,
@@ -451,8 +476,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         Inconsistent settings or data, with what to change (checked before heavy work).
     """
     clock = _Clock(progress)
-    data = _validate(measurement, settings)
-    settings = settings.resolved(data)
+    settings = check_settings(measurement.layout, settings)
+    data = measurement.select(settings.inputs, settings.outputs)
     clock.done("validation", 0.02, f"settings checked, {settings.block_rows} block rows")
     spectra, elements, ranges = extended_spectra(data, settings)
     clock.done("spectra_and_bases", 0.2, f"{spectra.n_lines} lines, "

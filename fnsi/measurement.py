@@ -50,6 +50,77 @@ def _names(names, count: int, prefix: str, what: str) -> tuple[str, ...]:
     return result
 
 
+def _index(names: tuple[str, ...], name: str, kind: str) -> int:
+    """Position of channel ``name`` among ``names``; ValueError listing the valid names."""
+    try:
+        return names.index(name)
+    except ValueError:
+        raise ValueError(f"unknown {kind} channel {name!r}; {kind}s are {list(names)}") from None
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The shape of a measurement without its samples.
+
+    What checks of identification settings need (:func:`fnsi.identification.
+    check_settings`), so that a service holding only a dataset's summary can refuse bad
+    settings before any data are loaded.
+
+    Attributes
+    ----------
+    fs : float
+        Sampling rate [Hz].
+    periods : int
+        Periods in each record.
+    period_length : int
+        Samples per period.
+    n_realisations : int
+        Independent realisations.
+    input_names, output_names : tuple of str
+        Channel names.
+    """
+
+    fs: float
+    periods: int
+    period_length: int
+    n_realisations: int
+    input_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+
+    @property
+    def n_inputs(self) -> int:
+        """Number m of input channels."""
+        return len(self.input_names)
+
+    @property
+    def n_outputs(self) -> int:
+        """Number l of output channels."""
+        return len(self.output_names)
+
+    @property
+    def n_samples(self) -> int:
+        """Samples per realisation."""
+        return self.periods * self.period_length
+
+    def input_index(self, name: str) -> int:
+        """Column of input ``name``; ValueError listing the valid names."""
+        return _index(self.input_names, name, "input")
+
+    def output_index(self, name: str) -> int:
+        """Column of output ``name``; ValueError listing the valid names."""
+        return _index(self.output_names, name, "output")
+
+    def select(self, inputs=None, outputs=None) -> Layout:
+        """Layout of the named inputs and outputs (None keeps all), in order."""
+        for name in inputs or ():
+            self.input_index(name)
+        for name in outputs or ():
+            self.output_index(name)
+        return Layout(self.fs, self.periods, self.period_length, self.n_realisations,
+                      self.input_names if inputs is None else tuple(inputs),
+                      self.output_names if outputs is None else tuple(outputs))
+
+
 @dataclass(frozen=True)
 class Measurement:
     """Periodic input-output record of a structure.
@@ -170,22 +241,20 @@ class Measurement:
         """Samples per period."""
         return self.n_samples // self.periods
 
+    @property
+    def layout(self) -> Layout:
+        """The shape of this measurement without its samples."""
+        return Layout(self.fs, self.periods, self.period_length, self.n_realisations,
+                      self.input_names, self.output_names)
+
     # -- channels --------------------------------------------------------------------------
     def output_index(self, name: str) -> int:
         """Column of output ``name`` in ``y``; ValueError listing the valid names."""
-        try:
-            return self.output_names.index(name)
-        except ValueError:
-            raise ValueError(f"unknown output channel {name!r}; outputs are "
-                             f"{list(self.output_names)}") from None
+        return _index(self.output_names, name, "output")
 
     def input_index(self, name: str) -> int:
         """Column of input ``name`` in ``u``; ValueError listing the valid names."""
-        try:
-            return self.input_names.index(name)
-        except ValueError:
-            raise ValueError(f"unknown input channel {name!r}; inputs are "
-                             f"{list(self.input_names)}") from None
+        return _index(self.input_names, name, "input")
 
     def select(self, inputs=None, outputs=None) -> Measurement:
         """Measurement restricted to the named inputs and outputs (None keeps all), in order."""

@@ -4,58 +4,26 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
-from fnsi import subspace
-from fnsi.nonlinear import NonlinearElement
-from fnsi.spectra import band_lines, check_band
+from fnsi.identification import check_settings
+from fnsi.measurement import Layout
 from service.deps import require_dataset
 from service.problems import ProblemError
 from service.queue import JobQueue
 from service.schemas.identifications import IdentificationRequest
 from service.store import JobRecord, Store
+from worker.identifications import settings_of
 
 
 def check_dimensions(summary: dict, request: IdentificationRequest,
                      memory_limit_mb: float) -> None:
-    """The library's checks of an identification against the dataset's shape, made from
-    the dataset summary so the API never loads the arrays (ValueError naming the fix).
-
-    Mirrors ``fnsi.identification`` validation: band within Nyquist, periods left after
-    the transient, block rows (``"auto"`` resolved as the library does), enough lines
-    for them and the order (harmonic lines for periodic data), working memory.
-    """
-    fs, periods, length = summary["fs"], summary["periods"], summary["period_length"]
-    check_band(request.band, fs)
-    kept = periods - request.discard_periods
-    if kept < 1:
-        raise ValueError(f"discard_periods={request.discard_periods} leaves no period of the "
-                         f"{periods} measured; discard fewer")
-    if request.weighting and kept < 2:
-        raise ValueError(f"weighting needs two kept periods; {kept} kept ({periods} measured, "
-                         f"{request.discard_periods} discarded)")
-    record = kept * length if request.line_set == "all" else length
-    n_lines = band_lines(record, fs, request.band).size
-    if n_lines == 0:
-        raise ValueError(f"no DFT line in the band {list(request.band)} Hz; widen it")
-    signal = band_lines(length, fs, request.band).size
-    realisations = summary["realisations"]
-    n_outputs = len(request.outputs or summary["outputs"])
-    n_extended = len(request.inputs or summary["inputs"]) + sum(
-        NonlinearElement.from_json(e.model_dump(mode="json")).n_basis for e in request.elements)
-    block_rows = (subspace.auto_block_rows(
-        signal, realisations, n_extended, n_outputs,
-        order=None if request.order == "auto" else request.order)
-        if request.block_rows == "auto" else request.block_rows)
-    dimensions = (n_lines, realisations, n_extended, n_outputs, block_rows)
-    # as fnsi.identification: "auto" decomposes up to max_order capped at l (i - 1), so
-    # only an explicit order can be too large for the block rows
-    cap = n_outputs * (block_rows - 1)
-    order = min(request.max_order, cap) if request.order == "auto" else request.order
-    subspace.check_dimensions(*dimensions, order, signal_lines=signal)
-    need = subspace.memory_estimate(*dimensions)
-    if need > memory_limit_mb * 2**20:
-        raise ValueError(f"FNSI would need about {need / 2**20:.0f} MiB, above the limit of "
-                         f"{memory_limit_mb:.0f} MiB (FNSI_MEMORY_LIMIT_MB); reduce "
-                         "block_rows, the band, the outputs or the basis functions")
+    """The library's checks of an identification against the dataset's shape
+    (:func:`fnsi.identification.check_settings`), made on the layout in the dataset
+    summary so the API never loads the arrays (ValueError naming the fix)."""
+    layout = Layout(fs=summary["fs"], periods=summary["periods"],
+                    period_length=summary["period_length"],
+                    n_realisations=summary["realisations"],
+                    input_names=tuple(summary["inputs"]), output_names=tuple(summary["outputs"]))
+    check_settings(layout, settings_of(request.model_dump(mode="json"), memory_limit_mb))
 
 
 def check_request(store: Store, owner: str, kind: str, request: BaseModel,

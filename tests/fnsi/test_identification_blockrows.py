@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from fnsi.identification import IdentificationSettings, identify
+from fnsi.identification import IdentificationSettings, check_settings, identify
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.subspace import AUTO_MAX_BLOCK_ROWS, auto_block_rows, check_dimensions
@@ -102,3 +102,20 @@ def test_order_counts_in_the_signal_rule():
 def test_basis_count_beyond_the_signal_suggests_no_block_rows():
     with pytest.raises(ValueError, match="use fewer basis functions, a lower max_order"):
         check_dimensions(ALL_LINES, 1, 90, 2, 2, 2, signal_lines=HARMONIC_LINES)
+
+
+def test_a_layout_is_checked_like_its_measurement(periodic):
+    # what a service holding only a dataset's summary can refuse before loading the data
+    layout = periodic.layout
+    assert (layout.n_samples, layout.n_inputs, layout.n_outputs) == (
+        periodic.n_samples, periodic.n_inputs, periodic.n_outputs)
+    settings = IdentificationSettings(band=BAND, elements=(spline(9),))
+    assert check_settings(layout, settings) == check_settings(periodic, settings)
+    assert check_settings(layout, settings).block_rows == settings.resolved(periodic).block_rows
+    refused = IdentificationSettings(band=BAND, block_rows=2 * HARMONIC_LINES, order=4,
+                                     elements=(spline(9),))
+    for record in (layout, periodic):
+        with pytest.raises(ValueError, match="too many block rows"):
+            check_settings(record, refused)
+        with pytest.raises(ValueError, match="unknown output channel 'c'; outputs are"):
+            check_settings(record, IdentificationSettings(band=BAND, outputs=("a", "c")))
