@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from service.schemas.results import JobResult
 from service.store import JobRecord, JobState
 
 
@@ -36,8 +37,9 @@ class Job(BaseModel):
                           "up to FNSI_MAX_ATTEMPTS times).", examples=[1])
     batch_id: str | None = Field(None, description="Batch the job was submitted in.")
     request: dict[str, Any] = Field(description="The validated request, defaults filled in.")
-    result: dict[str, Any] | None = Field(
-        None, description="Outcome once succeeded: {\"dataset_id\": ...} for a simulation, "
+    result: JobResult | None = Field(
+        None, union_mode="left_to_right",
+        description="Outcome once succeeded: {\"dataset_id\": ...} for a simulation, "
         "the identification result for an identification; for a study or study_revision "
         "the revision number and error history, for a study_diagnosis the ranked "
         "candidates.")

@@ -55,6 +55,7 @@ def test_generated_client_uploads_identifies_and_downloads_a_png(embedded_stack,
     from fnsi_client.api.jobs import get_job
     from fnsi_client.models import (
         BodyCreateDataset,
+        IdentificationJobResult,
         IdentificationRequest,
         JobState,
         Problem,
@@ -81,6 +82,17 @@ def test_generated_client_uploads_identifies_and_downloads_a_png(embedded_stack,
         time.sleep(0.2)
         job = get_job.sync(job_id=job.id, client=client)
     assert job.state == JobState.SUCCEEDED, job.error
+
+    # The result is a typed model: attributes, not dict keys, and the same values.
+    result = job.result
+    assert isinstance(result, IdentificationJobResult)
+    assert isinstance(result.order, int) and result.order >= 2
+    assert all(isinstance(mode.frequency_hz, float) for mode in result.modes)
+    assert result.output_names == ["x1", "x2"]
+    assert result.coefficients[0].identifiable
+    with embedded_stack.client() as http:
+        raw = http.get(f"/v1/jobs/{job.id}").json()["result"]
+    assert result.to_dict() == raw
 
     png = get_artefact.sync(job_id=job.id, name="stabilisation.png", client=client)
     assert isinstance(png, File) and png.payload.read().startswith(PNG)

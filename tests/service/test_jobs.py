@@ -1,7 +1,19 @@
-"""Batches (idempotent), job listing with filters and cursors, cancel of queued jobs."""
+"""Batches (idempotent), job listing with filters and cursors, cancel of queued jobs,
+typed job results."""
 
 from __future__ import annotations
 
+import json
+
+import pytest
+
+from service.schemas.jobs import Job
+from service.schemas.results import (
+    DiagnosisJobResult,
+    IdentificationJobResult,
+    SimulationJobResult,
+    StudyJobResult,
+)
 from service.store import JobState
 
 SIM = {"kind": "simulation", "request": {"preset": "single", "periods": 3,
@@ -71,3 +83,38 @@ def test_cancel_of_a_queued_job_is_immediate(client):
     assert response.json()["state"] == JobState.CANCELLED
     # cancelling again changes nothing
     assert client.delete(f"/v1/jobs/{job.id}").json()["state"] == JobState.CANCELLED
+
+
+IDENTIFIED = {
+    "order": 2, "modes": [{"frequency_hz": 13.0, "damping_ratio": 0.01,
+                           "shape": [[1.0, 0.0]], "confirmed": None}],
+    "output_names": ["x1"],
+    "coefficients": [{"name": "k3", "element": 0, "basis": 0, "method": "fnsi",
+                      "identifiable": False, "reason": "no motion at x1"}],
+    "stiffness": [], "timings_s": {"fnsi": 0.5}, "settings": None,
+    "errors": {"estimation": {"failure": "the model is unstable"}}, "later_field": [1, 2]}
+REVISED = {"study_id": "study_1", "revision": 0, "revision_summary": {
+    "number": 0, "note": "starting model", "order": "auto", "identified_order": 2,
+    "elements": [], "coefficients": [], "modal": {"frequency_hz": [13.0]},
+    "nrmse_percent": None, "noise_floor_percent": None, "validation": None,
+    "failure": "unstable"}, "history": []}
+DIAGNOSED = {"study_id": "study_1", "revision": 0, "nrmse_before_percent": 2.5,
+             "noise_floor_percent": 0.4, "found": False, "summary": "nothing found",
+             "candidates": [], "notes": [], "timings": {"screening": 1.5}}
+
+
+@pytest.mark.parametrize(("kind", "result", "model"), [
+    ("simulation", {"dataset_id": "ds_1"}, SimulationJobResult),
+    ("identification", IDENTIFIED, IdentificationJobResult),
+    ("study_revision", REVISED, StudyJobResult),
+    ("study_diagnosis", DIAGNOSED, DiagnosisJobResult),
+    # a document of no known shape (e.g. from an older worker) is still served
+    ("identification", {"legacy": True, "order": "unknown"}, dict)])
+def test_job_result_is_typed_by_its_fields_and_returned_unchanged(kind, result, model):
+    job = Job(id="job_1", kind=kind, state=JobState.SUCCEEDED, progress=1.0, message="done",
+              created_at="2026-01-01T00:00:00Z", attempts=1, request={}, result=result)
+    again = Job.model_validate(job.model_dump())  # as FastAPI validates a response
+    assert isinstance(again.result, model)
+    # Unknown keys kept, absent optional fields not added, ints not made floats.
+    returned = json.loads(again.model_dump_json())["result"]
+    assert json.dumps(returned, sort_keys=True) == json.dumps(result, sort_keys=True)

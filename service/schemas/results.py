@@ -1,0 +1,166 @@
+"""Schemas of job results, one per kind of job.
+
+A result is the JSON document the worker stored; these models document its main fields
+so that generated clients read them as typed attributes. They never reshape it: every
+other key passes through unchanged, and a field missing from the document stays missing
+in the response (it is not filled with its default).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, model_serializer
+
+from service.schemas.studies import Candidate, HistoryRow
+
+
+class _Document(BaseModel):
+    """A stored JSON document: documented fields, every other key kept as is."""
+
+    model_config = ConfigDict(extra="allow")
+
+    @model_serializer(mode="wrap")
+    def _keys_of_the_document(self, handler):
+        # Defaults document optional fields; emitting them would add keys the worker
+        # never wrote.
+        return {k: v for k, v in handler(self).items() if k in self.model_fields_set}
+
+
+class SimulationJobResult(_Document):
+    """Result of a simulation job: the dataset it produced (its truth is the artefact
+    truth.json)."""
+
+    dataset_id: str = Field(description="The simulated dataset.",
+                            examples=["ds_5f1c0e2a9b7d4c3e8a10"])
+
+
+class IdentifiedMode(_Document):
+    """A physical mode of the identified underlying linear system."""
+
+    frequency_hz: float = Field(description="Natural frequency [Hz].", examples=[13.7])
+    damping_ratio: float = Field(description="Damping ratio [-].", examples=[0.012])
+    shape: list[list[float]] = Field(description="Mode shape, one [re, im] pair per "
+                                     "output (order of output_names).")
+    confirmed: bool | None = Field(description="Stable at the next orders of the "
+                                   "stabilisation diagram; null when none follows.")
+
+
+class IdentifiedCoefficient(_Document):
+    """mu_j(omega) of one basis function of a nonlinear element, summarised over the
+    band (paper Section II.E); the estimate only when identifiable."""
+
+    name: str = Field(description="Element and basis function.")
+    element: int = Field(description="Index of the element in settings.elements.")
+    basis: int = Field(description="Index of the basis function in the element.")
+    method: str = Field(description="How mu_j(omega) was computed.")
+    identifiable: bool = Field(description="The data determine the coefficient.")
+    reason: str | None = Field(description="Why it is not identifiable.")
+    mean_real: float | None = Field(None, description="Estimate: weighted mean of Re mu "
+                                    "over the band.")
+    mean_imag: float | None = Field(None, description="Weighted mean of Im mu (ideally "
+                                    "0).")
+    log10_real_imag: float | None = Field(None, description="log10(|Re mu| / |Im mu|): "
+                                          "large for a physical element.")
+    variation: float | None = Field(None, description="Relative spread of Re mu over "
+                                    "frequency [-].")
+
+
+class IdentifiedStiffnessCurve(_Document):
+    """Force of an identified element against relative displacement (or velocity)."""
+
+    element: dict[str, Any] = Field(description="The element with its identified "
+                                    "coefficients (JSON shape of NonlinearElementSpec).")
+    variable: str = Field(description="Abscissa: displacement or velocity.")
+    x: list[float] = Field(description="Abscissae over the measured range.")
+    force: list[float] = Field(description="Element force at x.")
+
+
+class ErrorSummary(_Document):
+    """Errors of the model simulated with the measured input, or why it could not be."""
+
+    overall_nrmse_percent: float | None = Field(None, description="NRMSE over all "
+                                                "outputs, weighted by power [%].")
+    overall_nrmse_db: float | None = Field(None, description="The same in dB.")
+    overall_noise_floor_percent: float | None = Field(None, description="What a perfect "
+                                                      "model would reach [%].")
+    overall_noise_floor_db: float | None = Field(None, description="The same in dB.")
+    channels: list[dict[str, Any]] | None = Field(None, description="Per output: "
+                                                  "nrmse_percent, nrmse_db, noise floor.")
+    failure: str | None = Field(None, description="Why the model could not be simulated.")
+
+
+class IdentificationErrors(_Document):
+    """Simulation errors on the estimation data and, if given, the validation data."""
+
+    estimation: ErrorSummary = Field(description="On the estimation dataset.")
+    validation: ErrorSummary | None = Field(None, description="On the validation dataset "
+                                            "(present when one was given).")
+
+
+class IdentificationJobResult(_Document):
+    """Result of an identification job: result.json without the model matrices,
+    stabilisation diagram and singular values (download result.json or model.npz)."""
+
+    order: int = Field(description="Model order n.", examples=[10])
+    modes: list[IdentifiedMode] = Field(description="Physical modes in the band.")
+    output_names: list[str] = Field(description="Output channels, order of mode shapes.")
+    coefficients: list[IdentifiedCoefficient] = Field(
+        description="Nonlinear coefficients with quality criteria.")
+    stiffness: list[IdentifiedStiffnessCurve] = Field(description="One curve per element whose "
+                                            "coefficients are all identifiable.")
+    timings_s: dict[str, float] = Field(description="Wall time per stage [s].")
+    settings: dict[str, Any] | None = Field(description="Identification settings used, "
+                                            "spline knots resolved.")
+    errors: IdentificationErrors = Field(description="Simulation errors of the model.")
+
+
+class RevisionSummary(_Document):
+    """A study revision: its model and validation errors."""
+
+    number: int = Field(description="Revision number (0: the starting model).")
+    note: str = Field(description="What changed.")
+    order: int | str = Field(description="Requested order (or \"auto\").")
+    identified_order: int = Field(description="Order of the identified model.")
+    elements: list[dict[str, Any]] = Field(description="Requested nonlinear elements.")
+    coefficients: list[IdentifiedCoefficient] = Field(description="Identified "
+                                                      "coefficients.")
+    modal: dict[str, list[float]] = Field(description="frequency_hz [Hz] and "
+                                          "damping_ratio [-] of the linear system.")
+    nrmse_percent: float | None = Field(description="Overall validation NRMSE [%].")
+    noise_floor_percent: float | None = Field(description="Overall noise floor [%].")
+    validation: dict[str, Any] | None = Field(description="Validation errors per channel; "
+                                              "null if the model could not be simulated.")
+    failure: str | None = Field(description="Why the model could not be simulated.")
+
+
+class StudyJobResult(_Document):
+    """Result of a study or study_revision job: the revision it computed and the error
+    history of the study."""
+
+    study_id: str = Field(description="The study.")
+    revision: int = Field(description="Number of the revision computed.")
+    revision_summary: RevisionSummary = Field(description="That revision.")
+    history: list[HistoryRow] = Field(description="Error history, one row per revision.")
+
+
+class DiagnosisJobResult(_Document):
+    """Result of a study_diagnosis job: ranked candidate missing effects."""
+
+    study_id: str = Field(description="The study.")
+    revision: int = Field(description="Diagnosed revision.")
+    nrmse_before_percent: float | None = Field(description="Validation NRMSE of that "
+                                               "revision [%].")
+    noise_floor_percent: float | None = Field(description="Noise floor [%].")
+    found: bool = Field(description="The best candidate beats the noise floor.")
+    summary: str = Field(description="The verdict in words.")
+    candidates: list[Candidate] = Field(description="Candidates, best first.")
+    notes: list[str] = Field(description="Remarks on the diagnosis.")
+    timings: dict[str, float] = Field(description="Wall time per stage [s].")
+
+
+# Exactly one kind matches a document: each has required fields the others lack. A
+# document of none of these shapes (e.g. stored by an older worker) is still served, as a
+# plain object, rather than failing the response.
+JobResult = (SimulationJobResult | IdentificationJobResult | StudyJobResult
+             | DiagnosisJobResult | dict[str, Any])
