@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_serializer
 
-from service.schemas.studies import Candidate, HistoryRow
+from service.schemas.studies import Candidate, HistoryRow, RevisionRecord
 
 
 class _Document(BaseModel):
@@ -115,23 +115,8 @@ class IdentificationJobResult(_Document):
     errors: IdentificationErrors = Field(description="Simulation errors of the model.")
 
 
-class RevisionSummary(_Document):
-    """A study revision: its model and validation errors."""
-
-    number: int = Field(description="Revision number (0: the starting model).")
-    note: str = Field(description="What changed.")
-    order: int | str = Field(description="Requested order (or \"auto\").")
-    identified_order: int = Field(description="Order of the identified model.")
-    elements: list[dict[str, Any]] = Field(description="Requested nonlinear elements.")
-    coefficients: list[IdentifiedCoefficient] = Field(description="Identified "
-                                                      "coefficients.")
-    modal: dict[str, list[float]] = Field(description="frequency_hz [Hz] and "
-                                          "damping_ratio [-] of the linear system.")
-    nrmse_percent: float | None = Field(description="Overall validation NRMSE [%].")
-    noise_floor_percent: float | None = Field(description="Overall noise floor [%].")
-    validation: dict[str, Any] | None = Field(description="Validation errors per channel; "
-                                              "null if the model could not be simulated.")
-    failure: str | None = Field(description="Why the model could not be simulated.")
+class RevisionSummary(_Document, RevisionRecord):
+    """A study revision: its model and validation errors, as the job stored it."""
 
 
 class StudyJobResult(_Document):

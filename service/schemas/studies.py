@@ -175,8 +175,9 @@ class RevisionArtefacts(BaseModel):
     all: str = Field(description="Listing of every artefact of the job.")
 
 
-class Revision(BaseModel):
-    """One model of the study and its validation errors."""
+class RevisionRecord(BaseModel):
+    """One model of the study and its validation errors, as the study stores it (also
+    the ``revision_summary`` of a study job's result)."""
 
     number: int = Field(description="Position in the study (0: the starting model).")
     note: str = Field(description="What changed.", examples=["add clearance NC2w_Z-NC2b_Z"])
@@ -198,6 +199,11 @@ class Revision(BaseModel):
         description="Validation errors: per channel NRMSE [%] and [dB], noise floor, "
         "excess over the floor; null if the model could not be simulated.")
     failure: str | None = Field(None, description="Why the model could not be simulated.")
+
+
+class Revision(RevisionRecord):
+    """One model of the study and its validation errors, with the job that computed it."""
+
     job_id: str = Field(description="Job that computed this revision.")
     artefacts: RevisionArtefacts = Field(description="Figures of this revision.")
 
