@@ -656,7 +656,7 @@ def curve_of(run: Run, index: int) -> StiffnessCurve:
 
 
 def spline_element(measurement: Measurement, knots_kind: str) -> NonlinearElement:
-    """Spline at NC2-Z with the paper's knots or 13 automatic uniform intervals."""
+    """Spline at NC2-Z with the paper's knots or 13 intervals of automatic knots."""
     if knots_kind == "paper":
         return NonlinearElement("spline", *NC2,
                                 knots=paper_knots(measured_range(measurement, *NC2)))
@@ -848,8 +848,9 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
                                   run.settings.driving_points[0]))
     errors = [curve_error_percent(curve_of(diagnostic, k), e)
               for k, e in enumerate(truth.elements)]
-    best = [best_curve_error(e, t, (curve_of(run, k).x[0], curve_of(run, k).x[-1]))
-            for k, (e, t) in enumerate(zip(resolved, truth.elements, strict=True))]
+    spans = [curve_of(run, k).x[[0, -1]] for k in range(len(resolved))]
+    best = [best_curve_error(e, t, tuple(span))
+            for e, t, span in zip(resolved, truth.elements, spans, strict=True)]
     return [
         f"Dimension count: the excitation is periodic, so the signal lives on the "
         f"{harmonic} harmonic lines of the band, i.e. {2 * harmonic} real columns of the "

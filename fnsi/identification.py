@@ -118,7 +118,7 @@ class IdentificationSettings:
         equations. Needs two kept periods (skipped with one). Off by default: it pays
         with noisy bases that are not averaged (a cubic chain at 20 % noise: coefficient
         error -29 % -> -9 %), but on the SmallSat records its gain (single-39: mean error
-        over 20 noise realisations -0.08 -> -0.05 %, against a 0.3 % scatter) is small,
+        over 20 noise realisations -0.03 -> +0.00 %, against a 0.30 % scatter) is small,
         and with many bases it hurts (multi-18 with eight true-form clearances: curve
         errors 0.2-3.2 % -> up to 17 %, cause not yet established).
     memory_limit_mb : float
