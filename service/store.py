@@ -15,7 +15,6 @@ Layout::
 
 from __future__ import annotations
 
-import base64
 import hashlib
 import json
 import os
@@ -47,6 +46,7 @@ CREATE TABLE IF NOT EXISTS uploads (
 CREATE TABLE IF NOT EXISTS datasets (
     id TEXT PRIMARY KEY, owner TEXT NOT NULL, digest TEXT NOT NULL REFERENCES blobs(digest),
     name TEXT NOT NULL, source_job TEXT, created_at TEXT NOT NULL);
+CREATE INDEX IF NOT EXISTS datasets_by_owner ON datasets(owner);
 CREATE TABLE IF NOT EXISTS jobs (
     seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT UNIQUE NOT NULL, owner TEXT NOT NULL,
     kind TEXT NOT NULL, state TEXT NOT NULL, progress REAL NOT NULL DEFAULT 0,
@@ -97,6 +97,7 @@ class DatasetRecord:
     summary: dict[str, Any]
     size_bytes: int
     source_job: str | None = None
+    seq: int = 0  # creation order (SQLite rowid), the position in listings
 
 
 @dataclass(frozen=True)
@@ -161,11 +162,15 @@ def _job(row: sqlite3.Row) -> JobRecord:
     )
 
 
+_DATASETS = ("SELECT d.*, d.rowid AS seq, b.summary, b.size FROM datasets d "
+             "JOIN blobs b ON b.digest = d.digest")
+
+
 def _dataset(row: sqlite3.Row) -> DatasetRecord:
     return DatasetRecord(
         id=row["id"], owner=row["owner"], digest=row["digest"], name=row["name"],
         created_at=row["created_at"], summary=json.loads(row["summary"]),
-        size_bytes=row["size"], source_job=row["source_job"],
+        size_bytes=row["size"], source_job=row["source_job"], seq=row["seq"],
     )
 
 
@@ -178,24 +183,6 @@ def measurement_digest(measurement: Measurement) -> str:
     for array in (measurement.u, measurement.y):  # copies only a non-contiguous selection
         h.update(memoryview(np.ascontiguousarray(array)).cast("B"))
     return h.hexdigest()
-
-
-def encode_cursor(seq: int) -> str:
-    """Opaque pagination cursor for a job sequence number."""
-    return base64.urlsafe_b64encode(f"job:{seq}".encode()).decode().rstrip("=")
-
-
-def decode_cursor(cursor: str) -> int:
-    """Sequence number of a cursor from :func:`encode_cursor`; ValueError if malformed."""
-    try:
-        text = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
-        kind, seq = text.split(":")
-        if kind != "job":
-            raise ValueError
-        return int(seq)
-    except (ValueError, UnicodeDecodeError):
-        raise ValueError("cursor is not one returned by this API; pass next_cursor "
-                         "from the previous page unchanged") from None
 
 
 class Store:
@@ -309,9 +296,19 @@ class Store:
 
     @staticmethod
     def _dataset_row(db: sqlite3.Connection, dataset_id: str) -> DatasetRecord | None:
-        row = db.execute("SELECT d.*, b.summary, b.size FROM datasets d JOIN blobs b "
-                         "ON b.digest = d.digest WHERE d.id = ?", (dataset_id,)).fetchone()
+        row = db.execute(f"{_DATASETS} WHERE d.id = ?", (dataset_id,)).fetchone()
         return None if row is None else _dataset(row)
+
+    def list_datasets(self, owner: str, *, before_seq: int | None = None,
+                      limit: int = 50) -> list[DatasetRecord]:
+        """Datasets of ``owner``, newest first; ``before_seq`` pages."""
+        sql, args = f"{_DATASETS} WHERE d.owner = ?", [owner]
+        if before_seq is not None:
+            sql += " AND d.rowid < ?"
+            args.append(before_seq)
+        with self._connect() as db:
+            rows = db.execute(f"{sql} ORDER BY d.rowid DESC LIMIT ?", [*args, limit])
+            return [_dataset(r) for r in rows.fetchall()]
 
     def dataset_of_job(self, job_id: str) -> DatasetRecord | None:
         """Dataset produced by a simulation job, if it stored one."""

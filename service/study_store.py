@@ -115,6 +115,21 @@ class StudyStore:
             return None
         return StudyRecord(**json.loads(path.read_text()))
 
+    def owned_by(self, owner: str, *, before: tuple[str, str] | None = None,
+                 limit: int = 50) -> list[StudyRecord]:
+        """Studies of ``owner``, newest first (by creation time, then id); ``before`` pages
+        with the ``(created_at, id)`` of the last study of the previous page. Reads every
+        study's record: meant for a lab's hundreds of studies, not for millions."""
+        records = []
+        for folder in self.root.iterdir():
+            record = self.get(folder.name)
+            if record is not None and record.owner == owner:
+                records.append(record)
+        records.sort(key=lambda r: (r.created_at, r.id), reverse=True)
+        if before is not None:
+            records = [r for r in records if (r.created_at, r.id) < before]
+        return records[:limit]
+
     def jobs(self, study_id: str, owner: str) -> list[JobRecord]:
         """Every job of the study, oldest first (read-only query of the job table)."""
         marks = ", ".join("?" * len(STUDY_JOB_KINDS))

@@ -1,4 +1,4 @@
-"""Datasets: upload (npz, csv, mat, h5, uff), summary, download, delete."""
+"""Datasets: upload (npz, csv, mat, h5, uff), list, summary, download, delete."""
 
 from __future__ import annotations
 
@@ -11,9 +11,16 @@ from fastapi.responses import FileResponse, Response
 from pydantic import ValidationError
 
 from service.deps import ApiKeyDep, OwnDatasetDep, SettingsDep, StoreDep
+from service.pagination import (
+    PageCursor,
+    PageLimit,
+    cursor_position,
+    sequence_number,
+    split_page,
+)
 from service.problems import ERROR_RESPONSES, ProblemError
 from service.readers import ReadOptions, format_of, read_measurement
-from service.schemas.datasets import Dataset, DownloadFormat, UploadMeta
+from service.schemas.datasets import Dataset, DatasetPage, DownloadFormat, UploadMeta
 from service.store import DatasetRecord, Store
 
 router = APIRouter(prefix="/v1/datasets", tags=["datasets"], responses=ERROR_RESPONSES)
@@ -100,6 +107,16 @@ def create_dataset(
     finally:
         path.unlink(missing_ok=True)
     return dataset_view(record)
+
+
+@router.get("", response_model=DatasetPage, summary="List datasets")
+def list_datasets(store: StoreDep, owner: ApiKeyDep, limit: PageLimit = 50,
+                  cursor: PageCursor = None) -> DatasetPage:
+    """The caller's datasets (uploaded and simulated), newest first, one page at a time."""
+    before = cursor_position(cursor, "dataset", sequence_number)
+    records = store.list_datasets(owner, before_seq=before, limit=limit + 1)
+    page, next_cursor = split_page(records, limit, "dataset", lambda r: str(r.seq))
+    return DatasetPage(items=[dataset_view(r) for r in page], next_cursor=next_cursor)
 
 
 @router.get("/{dataset_id}", response_model=Dataset, summary="Get a dataset's summary")

@@ -7,9 +7,16 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from service.deps import ApiKeyDep, OwnJobDep, StoreDep
-from service.problems import ERROR_RESPONSES, ProblemError
+from service.pagination import (
+    PageCursor,
+    PageLimit,
+    cursor_position,
+    sequence_number,
+    split_page,
+)
+from service.problems import ERROR_RESPONSES
 from service.schemas.jobs import Job, JobKind, JobPage
-from service.store import JobState, decode_cursor, encode_cursor
+from service.store import JobState
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], responses=ERROR_RESPONSES)
 
@@ -19,17 +26,13 @@ def list_jobs(
     store: StoreDep, owner: ApiKeyDep,
     state: Annotated[JobState | None, Query(description="Only jobs in this state.")] = None,
     kind: Annotated[JobKind | None, Query(description="Only jobs of this kind.")] = None,
-    limit: Annotated[int, Query(ge=1, le=200, description="Page size.")] = 50,
-    cursor: Annotated[str | None, Query(description="next_cursor of the previous page.")] = None,
+    limit: PageLimit = 50,
+    cursor: PageCursor = None,
 ) -> JobPage:
     """The caller's jobs, newest first, one page at a time."""
-    try:
-        before = decode_cursor(cursor) if cursor else None
-    except ValueError as err:
-        raise ProblemError(422, str(err)) from None
+    before = cursor_position(cursor, "job", sequence_number)
     records = store.list_jobs(owner, state=state, kind=kind, before_seq=before, limit=limit + 1)
-    page = records[:limit]
-    next_cursor = encode_cursor(page[-1].seq) if len(records) > limit else None
+    page, next_cursor = split_page(records, limit, "job", lambda r: str(r.seq))
     return JobPage(items=[Job.of(r) for r in page], next_cursor=next_cursor)
 
 

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Path, Response
 
 from service.deps import ApiKeyDep, QueueDep, SettingsDep, StoreDep, owned
+from service.pagination import NOT_OURS, PageCursor, PageLimit, cursor_position, split_page
 from service.problems import ERROR_RESPONSES, ProblemError
 from service.queue import JobQueue
 from service.schemas.jobs import Job
@@ -20,10 +21,12 @@ from service.schemas.studies import (
     Study,
     StudyDiagnosis,
     StudyJob,
+    StudyPage,
     StudyRequest,
+    StudySummary,
 )
 from service.store import DatasetRecord, JobRecord, JobState, Store
-from service.study_store import StudyRecord, StudyStore
+from service.study_store import STUDY_ID, StudyRecord, StudyStore
 from service.submission import check_request
 
 router = APIRouter(prefix="/v1/studies", tags=["studies"], responses=ERROR_RESPONSES)
@@ -158,6 +161,34 @@ def create_study(request: StudyRequest, store: StoreDep, queue: QueueDep, owner:
     _submit(store, queue, record, "study", body)
     response.headers["Location"] = f"/v1/studies/{record.id}"
     return _view(store, studies, record)
+
+
+def _summary(studies: StudyStore, record: StudyRecord) -> StudySummary:
+    snapshot = studies.snapshot(record.id)
+    latest = snapshot.study["history"][-1] if snapshot and snapshot.study["history"] else {}
+    return StudySummary(id=record.id, name=record.name, created_at=record.created_at,
+                        revisions=len(snapshot.study["revisions"]) if snapshot else 0,
+                        nrmse_percent=latest.get("nrmse_percent"),
+                        noise_floor_percent=latest.get("noise_floor_percent"),
+                        url=f"/v1/studies/{record.id}")
+
+
+def _study_position(position: str) -> tuple[str, str]:
+    created_at, _, study_id = position.rpartition("|")
+    if not created_at or not STUDY_ID.match(study_id):
+        raise ValueError(NOT_OURS)
+    return created_at, study_id
+
+
+@router.get("", response_model=StudyPage, summary="List studies")
+def list_studies(studies: StudiesDep, owner: ApiKeyDep, limit: PageLimit = 50,
+                 cursor: PageCursor = None) -> StudyPage:
+    """The caller's studies, newest first, each with its latest validation error."""
+    before = cursor_position(cursor, "study", _study_position)
+    records = studies.owned_by(owner, before=before, limit=limit + 1)
+    page, next_cursor = split_page(records, limit, "study",
+                                   lambda r: f"{r.created_at}|{r.id}")
+    return StudyPage(items=[_summary(studies, r) for r in page], next_cursor=next_cursor)
 
 
 @router.get("/{study_id}", response_model=Study, summary="Get a study")

@@ -86,3 +86,11 @@ class Dataset(BaseModel):
     inputs: list[str] = Field(description="Input channel names.", examples=[["force"]])
     outputs: list[str] = Field(description="Output channel names.", examples=[["NC2w_Z"]])
     channels: list[ChannelSummary] = Field(description="Per-channel statistics.")
+
+
+class DatasetPage(BaseModel):
+    """One page of datasets, newest first."""
+
+    items: list[Dataset] = Field(description="Datasets of this page.")
+    next_cursor: str | None = Field(
+        None, description="Pass as ?cursor= to get the next page; null on the last page.")

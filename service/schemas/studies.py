@@ -252,3 +252,27 @@ class Study(BaseModel):
         examples=["/v1/jobs/job_7d0c5e1f2a3b4c5d6e7f/artefacts/history.png"])
     diagnoses: list[StudyDiagnosis] = Field(description="Diagnoses requested, in order.")
     jobs: list[StudyJob] = Field(description="Every job of the study, oldest first.")
+
+
+class StudySummary(BaseModel):
+    """A study in a listing: what it is and where its error history stands."""
+
+    id: str = Field(description="Study id.", examples=["study_0a1b2c3d4e5f60718293"])
+    name: str = Field(description="Free label.")
+    created_at: str = Field(description="Creation time, ISO 8601 UTC.")
+    revisions: int = Field(description="Revisions computed so far.", examples=[2])
+    nrmse_percent: float | None = Field(
+        None, description="Validation NRMSE [%] of the latest revision; null before revision "
+        "0 or if it could not be simulated.", examples=[0.49])
+    noise_floor_percent: float | None = Field(None, description="Noise floor [%] of the "
+                                              "validation data.", examples=[0.36])
+    url: str = Field(description="Path of the study.",
+                     examples=["/v1/studies/study_0a1b2c3d4e5f60718293"])
+
+
+class StudyPage(BaseModel):
+    """One page of studies, newest first."""
+
+    items: list[StudySummary] = Field(description="Studies of this page.")
+    next_cursor: str | None = Field(
+        None, description="Pass as ?cursor= to get the next page; null on the last page.")

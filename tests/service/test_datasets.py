@@ -137,3 +137,28 @@ def test_upload_over_the_limit_is_413(make_client, tmp_path):
     assert response.headers["content-type"] == "application/problem+json"
     assert "FNSI_MAX_UPLOAD_BYTES" in response.json()["detail"]
     assert list(client.app.state.store.tmp.iterdir()) == []
+
+
+def test_dataset_pages_follow_cursors_newest_first_per_key(make_client, tmp_path):
+    client = make_client(api_keys="alice,bob")
+    path = formats.write_npz(REC, tmp_path / "rec.npz")
+    alice, bob = {"X-API-Key": "alice"}, {"X-API-Key": "bob"}
+    ids = [upload(client, path, {"name": f"run{k}"}, alice).json()["id"] for k in range(5)]
+    upload(client, path, None, bob)
+    assert client.delete(f"/v1/datasets/{ids[2]}", headers=alice).status_code == 204
+    seen, cursor = [], None
+    while True:
+        page = client.get("/v1/datasets", headers=alice,
+                          params={"limit": 2, **({"cursor": cursor} if cursor else {})}).json()
+        seen += page["items"]
+        cursor = page["next_cursor"]
+        if cursor is None:
+            break
+    assert [d["id"] for d in seen] == [ids[4], ids[3], ids[1], ids[0]]
+    assert [d["name"] for d in seen] == ["run4", "run3", "run1", "run0"]
+    assert seen[0]["outputs"] == ["NC2w_Z", "NC2b_Z"] and seen[0]["fs"] == REC.fs
+    assert len(client.get("/v1/datasets", headers=bob).json()["items"]) == 1
+    for bad in ("garbage", "am9iOjE"):  # the second is a job cursor ("job:1")
+        response = client.get("/v1/datasets", headers=alice, params={"cursor": bad})
+        assert response.status_code == 422
+        assert response.headers["content-type"] == "application/problem+json"

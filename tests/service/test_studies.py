@@ -18,6 +18,8 @@ import time
 import pytest
 
 from fnsi.measurement import Measurement
+from service.deps import PUBLIC_OWNER
+from service.pagination import encode_cursor
 from service.store import Store
 from service.study_store import StudyStore
 from tests.fnsi.test_cli import HIDDEN
@@ -178,11 +180,45 @@ def test_bad_requests_say_what_to_change(server, datasets, worked):
         assert job["state"] == "failed" and "no element 5 to remove" in job["error"]
         assert len(client.get(study).json()["revisions"]) == 3  # nothing lost
 
+def test_study_listing_shows_where_each_study_stands(server, worked):
+    with server.client(headers=ALICE) as client:
+        page = client.get("/v1/studies").json()
+    (listed,) = [s for s in page["items"] if s["id"] == worked["id"]]
+    history = worked["study"]["history"]
+    assert listed["revisions"] == len(history) == 3 and listed["name"] == "chain"
+    assert listed["nrmse_percent"] == history[-1]["nrmse_percent"]
+    assert listed["noise_floor_percent"] == history[-1]["noise_floor_percent"]
+    assert listed["url"] == f"/v1/studies/{worked['id']}"
+    with server.client(headers=BOB) as client:
+        assert worked["id"] not in [s["id"] for s in client.get("/v1/studies").json()["items"]]
+
+
+def test_study_pages_follow_cursors_newest_first(client):
+    studies = StudyStore(client.app.state.store)
+    created = [studies.create(PUBLIC_OWNER, f"s{k}", {}) for k in range(5)]
+    studies.create("another owner", "hidden", {})
+    seen, cursor = [], None
+    while True:
+        page = client.get("/v1/studies", params={"limit": 2,
+                                                 **({"cursor": cursor} if cursor else {})})
+        assert page.status_code == 200, page.text
+        seen += page.json()["items"]
+        cursor = page.json()["next_cursor"]
+        if cursor is None:
+            break
+    newest_first = sorted(created, key=lambda r: (r.created_at, r.id), reverse=True)
+    assert [s["id"] for s in seen] == [r.id for r in newest_first]
+    assert {(s["revisions"], s["nrmse_percent"]) for s in seen} == {(0, None)}
+    for bad in ("garbage", encode_cursor("job", "7"), encode_cursor("study", "x|y")):
+        response = client.get("/v1/studies", params={"cursor": bad})
+        assert response.status_code == 422 and "next_cursor" in response.json()["detail"]
+
 
 def test_openapi_names_the_study_operations(server):
     with server.client() as client:
         paths = client.get("/openapi.json").json()["paths"]
     assert paths["/v1/studies"]["post"]["operationId"] == "create_study"
+    assert paths["/v1/studies"]["get"]["operationId"] == "list_studies"
     assert paths["/v1/studies/{study_id}"]["get"]["operationId"] == "get_study"
     assert paths["/v1/studies/{study_id}/revisions"]["post"]["operationId"] == "create_revision"
     assert paths["/v1/studies/{study_id}/diagnoses"]["post"]["operationId"] == (
