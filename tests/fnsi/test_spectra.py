@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from fnsi.measurement import Measurement
-from fnsi.spectra import band_lines, integrate_periodic, noise_covariance, output_spectra
+from fnsi.spectra import (
+    band_lines,
+    integrate_periodic,
+    noise_covariance,
+    output_spectra,
+    period_mean,
+    transform,
+)
 
 
 def test_line_count_of_the_paper():
@@ -77,6 +84,33 @@ def test_noise_covariance_from_period_spread():
     np.testing.assert_allclose(np.mean(cov_exc[:, [0, 1], [0, 1]].real, axis=0),
                                sigma**2 / periods, rtol=0.05)
     assert abs(np.mean(cov_all[:, 0, 1])) < 0.05 * sigma.prod()  # independent channels
+
+
+def test_noise_covariance_of_period_averaged_channels_matches_their_spread():
+    """``averaged`` channels (bases of ``average_bases``) are analysed as the period
+    average repeated over the periods: on the "all" lines their noise is zero between the
+    harmonics and, on the harmonics, equal to the single-period covariance. The truth is
+    the spread of the averaged channel's spectrum over many noise draws."""
+    rng = np.random.default_rng(1)
+    draws, periods, M, fs, band = 400, 4, 64, 64.0, (1.0, 20.0)
+    t = np.arange(periods * M) / fs
+    signal = np.sin(2 * np.pi * 3.0 * t)[None, :, None]
+    y = signal + 0.3 * rng.standard_normal((draws, periods * M, 2))
+    averaged = np.array([False, True])
+    cov = np.mean([noise_covariance(y[[k]], periods, fs, band, "all", averaged=averaged)
+                   for k in range(draws)], axis=0)
+    analysed = np.concatenate([y[:, :, :1], period_mean(y[:, :, 1:], periods)], axis=2)
+    _, X = transform(analysed, periods, fs, band, "all")
+    spread = np.var(X, axis=0)                  # (lines, 2): the truth per line
+    harmonic = band_lines(periods * M, fs, band) % periods == 0
+    assert np.all(cov[~harmonic, 1, :] == 0) and np.all(cov[~harmonic, :, 1] == 0)
+    assert np.all(spread[~harmonic, 1] < 1e-25)  # the average has no other lines
+    # 400 draws: each variance is known to sqrt(2/400) ~ 7 %; the mean over the lines to
+    # ~1.5 % (harmonics) and ~1 % (all lines); 5 % leaves room.
+    for channel, lines in ((0, slice(None)), (1, harmonic)):
+        np.testing.assert_allclose(np.mean(cov[lines, channel, channel].real),
+                                   np.mean(spread[lines, channel]), rtol=0.05)
+    np.testing.assert_allclose(np.mean(spread[harmonic, 1]), 0.3**2, rtol=0.05)
 
 
 def test_noise_needs_two_periods_and_band_below_nyquist():
