@@ -15,9 +15,12 @@ one JSON object::
 ``stop_rank`` is the screening rank (1: best) of the NC2w_Z-NC2b_Z location and
 ``true_stop_nrmse_pct`` the validation NRMSE of revision 0 with the true stop added
 (clearance and gap from the simulation's truth): what a correct diagnosis reaches with
-these identification settings.
+these identification settings. An NRMSE is null when its model could not be simulated
+(unstable or diverging).
 
-Run: ``.venv/bin/python benchmarks/diagnosis.py [--periods 8 --samples-per-period 30000]``
+Run: ``.venv/bin/python benchmarks/diagnosis.py [--periods 8 --samples-per-period 30000]``;
+``--noise-percent 0 --band-high 200 --order 36`` shows what the true stop reaches without
+noise when the model also sees the lines above the excitation.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import time
 from dataclasses import replace
 
 from fnsi.diagnosis import DiagnosisSettings, Location
+from fnsi.errors import json_float
 from fnsi.identification import IdentificationSettings
 from fnsi.smallsat import simulate_preset
 from fnsi.study import Study
@@ -49,22 +53,28 @@ def main() -> int:
     parser.add_argument("--line-set", choices=["all", "excited"], default="excited",
                         help="FNSI lines: the excited harmonics averaged over the periods "
                              "(6 x fewer lines than 'all', same information on the FRF)")
+    parser.add_argument("--band-high", type=float, default=50.0,
+                        help="upper edge of the identification band [Hz]; above the 50 Hz "
+                             "excitation only the nonlinear forces excite the structure")
+    parser.add_argument("--noise-percent", type=float, default=0.5,
+                        help="output noise in %% of the bracket tip's RMS (0: noise-free, "
+                             "to separate model error from noise)")
     parser.add_argument("--validated", type=int, default=3,
                         help="candidates identified and simulated on validation data")
     args = parser.parse_args()
 
     start = time.perf_counter()
-    estimation, truth = simulate_preset("single", periods=args.periods,
-                                        samples_per_period=args.samples_per_period, seed=1)
-    validation, _ = simulate_preset("single", periods=args.periods,
-                                    samples_per_period=args.samples_per_period, seed=2)
+    record = {"periods": args.periods, "samples_per_period": args.samples_per_period,
+              "noise_percent": args.noise_percent}
+    estimation, truth = simulate_preset("single", seed=1, **record)
+    validation, _ = simulate_preset("single", seed=2, **record)
     simulation_s = time.perf_counter() - start
     print(f"simulated 2 x {args.periods} x {args.samples_per_period} samples, "
           f"{estimation.n_outputs} outputs in {simulation_s:.1f} s; exceedances "
           f"{ {k: v for k, v in truth.exceedances.items() if v} }")
 
     settings = IdentificationSettings(
-        band=(5.0, 50.0), block_rows=args.block_rows, order=args.order,
+        band=(5.0, args.band_high), block_rows=args.block_rows, order=args.order,
         max_order=max(args.order, 30), discard_periods=args.discard_periods,
         line_set=args.line_set,
         driving_points=((estimation.input_names[0], "NC2w_Z"),))
@@ -107,12 +117,12 @@ def main() -> int:
         "top_effect": top.effect.value,
         "top_dof": None if top.location is None else top.location.dof,
         "top_ref": None if top.location is None else top.location.ref,
-        "nrmse_before_pct": diagnosis.nrmse_before_percent,
-        "nrmse_after_pct": last.nrmse_percent,
-        "noise_floor_pct": study.noise_floor_percent,
+        "nrmse_before_pct": json_float(diagnosis.nrmse_before_percent),
+        "nrmse_after_pct": json_float(last.nrmse_percent),
+        "noise_floor_pct": json_float(study.noise_floor_percent),
         "stop_rank": stop_rank,
-        "true_stop_nrmse_pct": true_stop.nrmse_percent,
-    }))
+        "true_stop_nrmse_pct": json_float(true_stop.nrmse_percent),
+    }, allow_nan=False))
     return 0
 
 

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
+from fnsi.errors import json_float
 from fnsi.nonlinear import NonlinearElement
 from fnsi.screening import ScreeningProblem
 
@@ -280,20 +281,15 @@ class Candidate:
             "element": None if self.element is None else self.element.to_json(),
             "order": self.order,
             "location": None if self.location is None else self.location.to_json(),
-            "validation_nrmse_percent": _finite(self.validation_nrmse_percent),
-            "error_reduction_factor": _finite(self.error_reduction_factor),
+            "validation_nrmse_percent": json_float(self.validation_nrmse_percent),
+            "error_reduction_factor": json_float(self.error_reduction_factor),
             "beats_noise_floor": self.beats_noise_floor,
-            "screening_reduction": _finite(self.screening_reduction),
-            "log10_real_imag": _finite(self.log10_real_imag),
-            "flatness_percent": _finite(self.flatness_percent),
+            "screening_reduction": json_float(self.screening_reduction),
+            "log10_real_imag": json_float(self.log10_real_imag),
+            "flatness_percent": json_float(self.flatness_percent),
             "explanation": self.explanation,
             "failure": self.failure,
         }
-
-
-def _finite(value: float | None) -> float | None:
-    """JSON number, or null for None, NaN and infinities."""
-    return None if value is None or not math.isfinite(value) else float(value)
 
 
 @dataclass(frozen=True)
@@ -342,8 +338,8 @@ class Diagnosis:
         """JSON-ready result (``candidates`` best first, the HTTP contract)."""
         return {
             "revision": self.revision,
-            "nrmse_before_percent": _finite(self.nrmse_before_percent),
-            "noise_floor_percent": _finite(self.noise_floor_percent),
+            "nrmse_before_percent": json_float(self.nrmse_before_percent),
+            "noise_floor_percent": json_float(self.noise_floor_percent),
             "found": self.found,
             "summary": self.summary,
             "candidates": [c.to_json() for c in self.candidates],

@@ -27,9 +27,9 @@ def _decibel(percent: np.ndarray | float) -> np.ndarray:
         return 20.0 * np.log10(np.asarray(percent, dtype=float) / 100.0)
 
 
-def _json_float(value: float) -> float | None:
-    """A float for JSON: NaN and infinities (unknown values) become null."""
-    return float(value) if np.isfinite(value) else None
+def json_float(value: float | None) -> float | None:
+    """A number for JSON: None, NaN and infinities (unknown values) become null."""
+    return None if value is None or not np.isfinite(value) else float(value)
 
 
 @dataclass(frozen=True)
@@ -89,10 +89,10 @@ class ModelErrors:
         channels = [
             {
                 "output": name,
-                "nrmse_percent": _json_float(e),
-                "nrmse_db": _json_float(e_db),
-                "noise_floor_percent": _json_float(n),
-                "noise_floor_db": _json_float(n_db),
+                "nrmse_percent": json_float(e),
+                "nrmse_db": json_float(e_db),
+                "noise_floor_percent": json_float(n),
+                "noise_floor_db": json_float(n_db),
             }
             for name, e, e_db, n, n_db in zip(
                 self.output_names, self.nrmse_percent, self.nrmse_db,
@@ -100,17 +100,17 @@ class ModelErrors:
             )
         ]
         result = {
-            "overall_nrmse_percent": _json_float(self.overall_percent),
-            "overall_nrmse_db": _json_float(_decibel(self.overall_percent)),
-            "overall_noise_floor_percent": _json_float(self.overall_noise_floor_percent),
-            "overall_noise_floor_db": _json_float(_decibel(self.overall_noise_floor_percent)),
+            "overall_nrmse_percent": json_float(self.overall_percent),
+            "overall_nrmse_db": json_float(_decibel(self.overall_percent)),
+            "overall_noise_floor_percent": json_float(self.overall_noise_floor_percent),
+            "overall_noise_floor_db": json_float(_decibel(self.overall_noise_floor_percent)),
             "channels": channels,
         }
         if spectra:
             result["spectra"] = {
                 "frequency_hz": self.frequencies.tolist(),
                 **{
-                    key: [[_json_float(v) for v in row] for row in _decibel(100.0 * values)]
+                    key: [[json_float(v) for v in row] for row in _decibel(100.0 * values)]
                     for key, values in (
                         ("measured_db", self.measured_spectrum),
                         ("error_db", self.error_spectrum),

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fnsi.errors import ModelErrors, model_errors
+from fnsi.errors import ModelErrors, json_float, model_errors
 from fnsi.identification import IdentificationResult, IdentificationSettings, identify
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
@@ -47,10 +47,6 @@ Progress = Callable[[float, str], None]
 FORMAT = "fnsi-study/1"
 """Error spectra reach this multiple of the band's upper edge (harmonics of a
 nonlinearity land there), capped at Nyquist."""
-
-
-def _finite(value: float) -> float | None:
-    return float(value) if math.isfinite(value) else None
 
 
 def pooled_percent(values: np.ndarray, power: np.ndarray) -> float:
@@ -203,7 +199,7 @@ class Revision:
                 errors["spectra"]["excited"] = self.excited.tolist()
             for channel, e_db, n_db in zip(errors["channels"], self.errors.nrmse_db,
                                            self.errors.noise_floor_db, strict=True):
-                channel["relative_to_noise_floor_db"] = _finite(float(e_db - n_db))
+                channel["relative_to_noise_floor_db"] = json_float(float(e_db - n_db))
             overall = errors["overall_nrmse_db"]
             floor = errors["overall_noise_floor_db"]
             errors["overall_relative_to_noise_floor_db"] = (
@@ -217,8 +213,8 @@ class Revision:
             "model_elements": [e.to_json() for e in self.model.elements],
             "coefficients": list(self.coefficients),
             "modal": self.modal,
-            "nrmse_percent": _finite(self.nrmse_percent),
-            "noise_floor_percent": _finite(self.noise_floor_percent),
+            "nrmse_percent": json_float(self.nrmse_percent),
+            "noise_floor_percent": json_float(self.noise_floor_percent),
             "validation": errors,
             "failure": self.failure,
         }
@@ -487,10 +483,10 @@ class Study:
             rows.append({
                 "number": r.number, "note": r.note, "order": r.identified_order,
                 "elements": [e.name for e in r.elements],
-                "nrmse_percent": _finite(r.nrmse_percent),
-                "nrmse_db": _finite(20 * math.log10(r.nrmse_percent / 100))
+                "nrmse_percent": json_float(r.nrmse_percent),
+                "nrmse_db": json_float(20 * math.log10(r.nrmse_percent / 100))
                 if math.isfinite(r.nrmse_percent) and r.nrmse_percent > 0 else None,
-                "noise_floor_percent": _finite(r.noise_floor_percent),
+                "noise_floor_percent": json_float(r.noise_floor_percent),
                 "failure": r.failure,
             })
         return rows
