@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from typing import Annotated, TypeVar
 
 from fastapi import Query
+from pydantic import Field
 
 from service.problems import ProblemError
 
@@ -20,6 +21,8 @@ NOT_OURS = "not one returned by this API; pass next_cursor from the previous pag
 
 PageLimit = Annotated[int, Query(ge=1, le=200, description="Page size.")]
 PageCursor = Annotated[str | None, Query(description="next_cursor of the previous page.")]
+NextCursor = Annotated[str | None, Field(
+    description="Pass as ?cursor= to get the next page; null on the last page.")]
 
 T = TypeVar("T")
 P = TypeVar("P")

@@ -7,6 +7,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
 
+from service.pagination import NextCursor
+
 Quantity = Literal["displacement", "velocity", "acceleration"]
 
 
@@ -92,5 +94,4 @@ class DatasetPage(BaseModel):
     """One page of datasets, newest first."""
 
     items: list[Dataset] = Field(description="Datasets of this page.")
-    next_cursor: str | None = Field(
-        None, description="Pass as ?cursor= to get the next page; null on the last page.")
+    next_cursor: NextCursor = None

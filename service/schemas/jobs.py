@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from service.pagination import NextCursor
 from service.schemas.results import JobResult
 from service.store import JobRecord, JobState
 
@@ -60,8 +61,7 @@ class JobPage(BaseModel):
     """One page of jobs, newest first."""
 
     items: list[Job] = Field(description="Jobs of this page.")
-    next_cursor: str | None = Field(
-        None, description="Pass as ?cursor= to get the next page; null on the last page.")
+    next_cursor: NextCursor = None
 
 
 class Artefact(BaseModel):

@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
 from fnsi.diagnosis import Effect
+from service.pagination import NextCursor
 from service.schemas.identifications import Auto, IdentificationRequest, NonlinearElementSpec
 from service.store import JobState
 
@@ -274,5 +275,4 @@ class StudyPage(BaseModel):
     """One page of studies, newest first."""
 
     items: list[StudySummary] = Field(description="Studies of this page.")
-    next_cursor: str | None = Field(
-        None, description="Pass as ?cursor= to get the next page; null on the last page.")
+    next_cursor: NextCursor = None
