@@ -22,7 +22,10 @@ candidate missing effects in three stages, from cheap to expensive:
    validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
    frequency, Section II.E). A missing linear mode (order + 2) is always validated.
 
-Candidates are ranked by validation NRMSE. A candidate *beats the noise floor* when the
+Candidates are ranked by validation NRMSE, the convincing ones first: a stop with
+negative contact stiffness, or friction or damping that feeds energy in, lowers the error
+for another reason and is reported with that concern (:func:`implausibility`) after them.
+A candidate *beats the noise floor* when the
 squared NRMSE it removes exceeds the squared noise floor, i.e. when the improvement is
 larger than anything a perfect model could still gain from noise; when none does, the
 diagnosis says so (no false alarm on a linear structure).
@@ -259,6 +262,11 @@ class Candidate:
         One or two sentences a test engineer reads.
     failure : str or None
         Why the validated model failed (e.g. unstable simulation), else None.
+    concern : str or None
+        Why the identified coefficient contradicts the physics of the effect (e.g. a stop
+        with negative contact stiffness, :func:`implausibility`), else None. Such a
+        candidate ranks after the convincing ones: something acts at its location, but
+        not the effect it names.
     """
 
     effect: Effect
@@ -273,6 +281,12 @@ class Candidate:
     flatness_percent: float | None
     explanation: str
     failure: str | None = None
+    concern: str | None = None
+
+    @property
+    def convincing(self) -> bool:
+        """It beats the noise floor with a physically plausible coefficient."""
+        return self.beats_noise_floor and self.concern is None
 
     def to_json(self) -> dict:
         """The HTTP contract's candidate object."""
@@ -289,6 +303,7 @@ class Candidate:
             "flatness_percent": json_float(self.flatness_percent),
             "explanation": self.explanation,
             "failure": self.failure,
+            "concern": self.concern,
         }
 
 
@@ -303,7 +318,7 @@ class Diagnosis:
     nrmse_before_percent, noise_floor_percent : float
         Validation NRMSE of the revision and the noise floor [%].
     candidates : tuple of Candidate
-        Validated candidates, best (lowest validation NRMSE) first.
+        Validated candidates, best first (:func:`rank_candidates`).
     locations : tuple of LocationScore
         Stage-1 screening, best first.
     proposals : tuple of Proposal
@@ -331,8 +346,8 @@ class Diagnosis:
 
     @property
     def found(self) -> bool:
-        """True when the best candidate beats the noise floor."""
-        return bool(self.candidates) and self.candidates[0].beats_noise_floor
+        """True when the best candidate beats the noise floor and is physically plausible."""
+        return bool(self.candidates) and self.candidates[0].convincing
 
     def to_json(self) -> dict:
         """JSON-ready result (``candidates`` best first, the HTTP contract)."""
@@ -600,6 +615,61 @@ def beats_noise_floor(before: float, after: float, floor: float) -> bool:
     return before**2 - after**2 > floor**2
 
 
+def implausibility(effect: Effect, element: NonlinearElement | None) -> str | None:
+    """Why an identified coefficient contradicts the physics of its effect, or None.
+
+    A stop only pushes the parts apart once in contact (contact stiffness mu > 0), dry
+    friction and quadratic damping only take energy out (mu > 0). A fit that needs the
+    opposite sign lowers the error for another reason: an effect of another kind or at a
+    nearby location, or a linear error of the revision that the basis happens to
+    correct. Cubic and quadratic stiffness take either sign (softening, asymmetry).
+
+    Parameters
+    ----------
+    effect : Effect
+    element : NonlinearElement or None
+        The element with its identified coefficients (None or no coefficients: nothing
+        to judge).
+
+    Returns
+    -------
+    str or None
+        The concern in words, e.g. ``"the identified contact stiffness is negative
+        (-2.3e-05): a stop cannot pull the parts together"``.
+
+    Examples
+    --------
+    >>> stop = NonlinearElement("clearance", "x1", gap=0.1, coefficients=(-5.0,))
+    >>> implausibility(Effect.CLEARANCE, stop)
+    'the identified contact stiffness is negative (-5): a stop cannot pull the parts together'
+    >>> implausibility(Effect.CLEARANCE, replace(stop, coefficients=(5.0,))) is None
+    True
+    """
+    if element is None or not element.coefficients:
+        return None
+    mu = element.coefficients[0]
+    if mu > 0:
+        return None
+    if effect is Effect.CLEARANCE:
+        return (f"the identified contact stiffness is negative ({_number(mu)}): a stop "
+                "cannot pull the parts together")
+    if effect is Effect.COULOMB_FRICTION:
+        return (f"the identified sliding force is negative ({_number(mu)}): friction "
+                "would drive the motion instead of resisting it")
+    if effect is Effect.QUADRATIC_DAMPING:
+        return (f"the identified damping coefficient is negative ({_number(mu)}): the "
+                "damper would feed energy into the structure")
+    return None
+
+
+def rank_candidates(candidates: Sequence[Candidate]) -> list[Candidate]:
+    """Candidates best first: the convincing ones (beyond the noise floor and physically
+    plausible, :attr:`Candidate.convincing`) before the others, each group by validation
+    NRMSE, then by the fixed-pole reduction."""
+    return sorted(candidates, key=lambda c: (not c.convincing, c.validation_nrmse_percent,
+                                             -(c.screening_reduction or 0.0)))
+
+
 def _coefficient_quality(evaluation: Evaluation, element: NonlinearElement
                          ) -> tuple[NonlinearElement, float | None, float | None]:
     """The element with its identified coefficients and their quality criteria."""
@@ -667,7 +737,8 @@ def _shape_words(proposal: Proposal, score: LocationScore | None) -> str:
 
 
 def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore | None,
-             before: float, after: float, floor: float, beats: bool) -> str:
+             before: float, after: float, floor: float, beats: bool,
+             concern: str | None) -> str:
     """Sentence for one element candidate."""
     if not math.isfinite(after):
         return (f"{_kind_words(proposal, element)}: the model with it could not be "
@@ -679,8 +750,10 @@ def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore
               f"adding it does not lower the validation error ({before:.3g} % -> {after:.3g} %)")
     floor_words = f" (noise floor {floor:.3g} %)" if math.isfinite(floor) else ""
     verdict = "" if beats else "; that is not beyond the noise floor"
+    doubt = "" if concern is None else (f"; but {concern}, so something else acts "
+                                        f"{proposal.location.phrase}")
     return (f"{_kind_words(proposal, element)}: {effect}{floor_words}"
-            f"{_shape_words(proposal, score)}{verdict}")
+            f"{_shape_words(proposal, score)}{verdict}{doubt}")
 
 
 def _explain_mode(evaluation: Evaluation, previous: Sequence[float], order: int,
@@ -702,8 +775,13 @@ def _summary(candidates: Sequence[Candidate], before: float, floor: float) -> st
     """Verdict in words."""
     floor_words = (f"the noise floor of {floor:.3g} %" if math.isfinite(floor)
                    else "the noise level")
-    if candidates and candidates[0].beats_noise_floor:
+    if candidates and candidates[0].convincing:
         return f"Most likely missing: {candidates[0].explanation}."
+    doubtful = [c for c in candidates if c.beats_noise_floor]
+    if doubtful:
+        return (f"No physically plausible candidate improves the validation error "
+                f"({before:.3g} %) beyond {floor_words}. The best improvement comes from "
+                f"{doubtful[0].explanation}.")
     return (f"No candidate improves the validation error ({before:.3g} %) beyond "
             f"{floor_words}: no missing effect is detected at the locations screened.")
 
@@ -733,14 +811,16 @@ def _validate(study: Study, revision: int, proposal: Proposal, before: float,
     after = evaluation.nrmse_percent
     element, log_ratio, flatness = _coefficient_quality(evaluation, proposal.element)
     beats = beats_noise_floor(before, after, floor)
+    concern = implausibility(proposal.effect, element)
     return Candidate(
         effect=proposal.effect, location=proposal.location, element=element,
         order=evaluation.order, validation_nrmse_percent=after,
         error_reduction_factor=before / after if after > 0 else math.inf,
         beats_noise_floor=beats, screening_reduction=proposal.reduction,
         log10_real_imag=log_ratio, flatness_percent=flatness,
-        explanation=_explain(proposal, element, score, before, after, floor, beats),
-        failure=evaluation.failure,
+        explanation=_explain(proposal, element, score, before, after, floor, beats,
+                             concern),
+        failure=evaluation.failure, concern=concern,
     )
 
 
@@ -843,7 +923,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     if settings.include_missing_mode:
         report(0.4 + 0.6 * (steps - 1) / steps, "validating one more linear mode")
         candidates.append(_validate_mode(study, index, before, floor))
-    candidates.sort(key=lambda c: (c.validation_nrmse_percent, -(c.screening_reduction or 0)))
+    candidates = rank_candidates(candidates)
     timings["validation_s"] = time.perf_counter() - start
     report(1.0, "diagnosis done")
     return Diagnosis(index, before, floor, tuple(candidates), scores, tuple(proposals),

@@ -150,6 +150,11 @@ class Candidate(BaseModel):
     explanation: str = Field(description="Why, in words.", examples=[
         "A clearance of about ±1.5 between NC2w_Z and NC2b_Z explains ..."])
     failure: str | None = Field(None, description="Why the validated model failed.")
+    concern: str | None = Field(
+        None, description="Why its identified coefficient contradicts the physics of the "
+        "effect (a stop with negative contact stiffness, friction or damping that feeds "
+        "energy in); such candidates rank after the convincing ones. Null when plausible.",
+        examples=[None])
 
 
 class StudyJob(BaseModel):

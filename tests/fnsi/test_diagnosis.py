@@ -24,11 +24,15 @@ import pytest
 
 from fnsi.acquisition import acquire
 from fnsi.diagnosis import (
+    Candidate,
+    Diagnosis,
     DiagnosisSettings,
     Effect,
     Location,
     beats_noise_floor,
     candidate_locations,
+    implausibility,
+    rank_candidates,
 )
 from fnsi.excitation import Excitation, periodic_noise
 from fnsi.identification import IdentificationSettings
@@ -139,6 +143,7 @@ def test_asymmetric_clearance_gaps_estimated():
     assert gn == pytest.approx(0.002, rel=0.05)
     assert gp == pytest.approx(0.001, rel=0.05)
     assert "asymmetric clearance between x4 and x5" in top.explanation
+    assert top.concern is None and "but the identified" not in top.explanation
     assert_fixed(study)
 
 
@@ -249,9 +254,11 @@ def test_diagnosis_json_follows_the_http_contract(cubic_case):
     assert {"effect", "element", "validation_nrmse_percent", "error_reduction_factor",
             "explanation"} <= set(first)
     assert first["element"]["kind"] == "polynomial" and first["element"]["dof"] == "x3"
-    values = [c["validation_nrmse_percent"] for c in data["candidates"]]
-    finite = [v for v in values if v is not None]
-    assert finite == sorted(finite)
+    ranks = [(not c["beats_noise_floor"] or c["concern"] is not None,
+              c["validation_nrmse_percent"])
+             for c in data["candidates"] if c["validation_nrmse_percent"] is not None]
+    assert ranks == sorted(ranks)
+    assert first["concern"] is None, "a hardening cubic spring is physical"
     mode = [c for c in data["candidates"] if c["effect"] == "missing_mode"]
     assert mode and mode[0]["element"] is None and mode[0]["order"] == 12
     assert data["stiffness_curves"], "the top location's spline curve is shown"
@@ -290,3 +297,49 @@ def test_noise_floor_criterion():
     assert not beats_noise_floor(10.0, 9.5, 0.5)    # less than 10 % better
     assert not beats_noise_floor(10.0, math.inf, 0.5)
     assert beats_noise_floor(10.0, 7.0, math.nan)   # no floor: 20 % better is enough
+
+
+@pytest.mark.parametrize(("kind", "effect", "extra", "words"), [
+    ("clearance", Effect.CLEARANCE, {"gap": 1e-3}, "contact stiffness is negative"),
+    ("coulomb_friction", Effect.COULOMB_FRICTION, {"width": 0.01},
+     "friction would drive the motion"),
+    ("quadratic_damping", Effect.QUADRATIC_DAMPING, {}, "feed energy into the structure"),
+])
+def test_energy_and_contact_signs_are_judged(kind, effect, extra, words):
+    element = NonlinearElement(kind, "x2", "x3", coefficients=(-2.3e-5,), **extra)
+    concern = implausibility(effect, element)
+    assert concern is not None and words in concern and "-2.3e-05" in concern
+    physical = dataclasses.replace(element, coefficients=(2.3e-5,))
+    assert implausibility(effect, physical) is None
+    assert implausibility(effect, dataclasses.replace(element, coefficients=(0.0,)))
+
+
+def test_softening_and_asymmetry_are_plausible_either_sign():
+    cubic = NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(-2e8,))
+    quadratic = NonlinearElement("polynomial", "x3", exponent=2.0, coefficients=(-1e5,))
+    assert implausibility(Effect.CUBIC_STIFFNESS, cubic) is None
+    assert implausibility(Effect.QUADRATIC_STIFFNESS, quadratic) is None
+    assert implausibility(Effect.MISSING_MODE, None) is None
+    unidentified = NonlinearElement("clearance", "x3", gap=1e-3)
+    assert implausibility(Effect.CLEARANCE, unidentified) is None
+
+
+def _candidate(effect: Effect, nrmse: float, concern: str | None = None) -> Candidate:
+    location = None if effect is Effect.MISSING_MODE else Location("x3")
+    return Candidate(effect=effect, location=location, element=None, order=10,
+                     validation_nrmse_percent=nrmse, error_reduction_factor=10.0 / nrmse,
+                     beats_noise_floor=beats_noise_floor(10.0, nrmse, 0.3),
+                     screening_reduction=None, log10_real_imag=None, flatness_percent=None,
+                     explanation=effect.value, concern=concern)
+
+
+def test_implausible_candidates_rank_after_plausible_ones_and_are_not_a_finding():
+    negative_stop = _candidate(Effect.CLEARANCE, 0.5, "the identified contact stiffness "
+                               "is negative (-2.3e-05): a stop cannot pull the parts together")
+    cubic = _candidate(Effect.CUBIC_STIFFNESS, 0.9)
+    mode = _candidate(Effect.MISSING_MODE, math.inf)
+    assert rank_candidates([mode, negative_stop, cubic]) == [cubic, negative_stop, mode]
+    assert cubic.convincing and not negative_stop.convincing
+    alone = Diagnosis(0, 10.0, 0.3, (negative_stop, mode), (), (), (), "", {})
+    assert negative_stop.beats_noise_floor and not alone.found
+    assert alone.to_json()["candidates"][0]["concern"].startswith("the identified contact")
