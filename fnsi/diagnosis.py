@@ -650,15 +650,16 @@ def implausibility(effect: Effect, element: NonlinearElement | None) -> str | No
     mu = element.coefficients[0]
     if mu > 0:
         return None
+    sign = f"{'negative' if mu < 0 else 'zero'} ({_number(mu)})"
     if effect is Effect.CLEARANCE:
-        return (f"the identified contact stiffness is negative ({_number(mu)}): a stop "
-                "cannot pull the parts together")
+        return (f"the identified contact stiffness is {sign}: a stop cannot pull the "
+                "parts together")
     if effect is Effect.COULOMB_FRICTION:
-        return (f"the identified sliding force is negative ({_number(mu)}): friction "
-                "would drive the motion instead of resisting it")
+        return (f"the identified sliding force is {sign}: friction would drive the motion "
+                "instead of resisting it")
     if effect is Effect.QUADRATIC_DAMPING:
-        return (f"the identified damping coefficient is negative ({_number(mu)}): the "
-                "damper would feed energy into the structure")
+        return (f"the identified damping coefficient is {sign}: the damper would feed "
+                "energy into the structure")
     return None
 
 

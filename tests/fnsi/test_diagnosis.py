@@ -311,7 +311,8 @@ def test_energy_and_contact_signs_are_judged(kind, effect, extra, words):
     assert concern is not None and words in concern and "-2.3e-05" in concern
     physical = dataclasses.replace(element, coefficients=(2.3e-5,))
     assert implausibility(effect, physical) is None
-    assert implausibility(effect, dataclasses.replace(element, coefficients=(0.0,)))
+    null = implausibility(effect, dataclasses.replace(element, coefficients=(0.0,)))
+    assert null is not None and "is zero (0)" in null
 
 
 def test_softening_and_asymmetry_are_plausible_either_sign():
