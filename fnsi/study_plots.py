@@ -200,15 +200,14 @@ def plot_candidates(diagnosis: Diagnosis) -> bytes:
               else np.nan for c in candidates]
     figure = new_figure(7.0, 1.2 + 0.55 * len(candidates))
     ax = figure.subplots()
-    verdicts = {"tab:green": "beats the noise floor",
-                "tab:orange": "beats it, implausible coefficient", "0.6": "within the noise"}
-    colours = ["tab:green" if c.convincing else "tab:orange" if c.beats_noise_floor else "0.6"
-               for c in candidates]
     y = np.arange(len(candidates))[::-1]
-    for colour, verdict in verdicts.items():
-        shown = [k for k, c in enumerate(colours) if c == colour]
-        if shown:
-            ax.barh(y[shown], np.asarray(values)[shown], color=colour, label=verdict)
+    groups = {("tab:green", "beats the noise floor"): [c.convincing for c in candidates],
+              ("tab:orange", "beats it, implausible coefficient"):
+                  [c.beats_noise_floor and not c.convincing for c in candidates],
+              ("0.6", "within the noise"): [not c.beats_noise_floor for c in candidates]}
+    for (colour, verdict), members in groups.items():
+        if any(members):
+            ax.barh(y[members], np.asarray(values)[members], color=colour, label=verdict)
     ax.set_yticks(y, labels, fontsize=7)
     ax.axvline(diagnosis.nrmse_before_percent, color="tab:red", label="revision now")
     if math.isfinite(diagnosis.noise_floor_percent):
