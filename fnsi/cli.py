@@ -98,6 +98,7 @@ def _identification_settings(args: argparse.Namespace):
         elements=_elements(args),
         weighting=args.weighting,
         driving_points=tuple(_pair(text) for text in args.driving_point),
+        refine=args.refine,
     )
 
 
@@ -181,6 +182,9 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--discard-periods", type=int, default=1)
     parser.add_argument("--weighting", action="store_true",
                         help="weight by the noise covariance estimated between periods")
+    parser.add_argument("--refine", action="store_true",
+                        help="refine the model by minimising its simulation error (slower; "
+                        "the model then reproduces the measurement much more closely)")
     parser.add_argument("--element", action="append", default=[],
                         help="a nonlinear element as JSON (repeatable)")
     parser.add_argument("--elements", help="JSON file with a list of nonlinear elements")

@@ -15,6 +15,8 @@ Pipeline (paper Sections II and IV), each stage timed:
 5. ``model``: A, C (shift property), B^e, D^e (least squares over all lines).
 6. ``physical``: modal table and nonlinear coefficients mu_j(omega) (Eq. 15-18),
    :mod:`fnsi.modal`; stiffness curves over the measured range (:mod:`fnsi.stiffness`).
+7. ``refinement`` (optional, ``refine``): the model's simulation error minimised
+   (:mod:`fnsi.refinement`).
 
 Known limitation: a spline element only approximates a non-smooth law, and the misfit
 biases the underlying linear FRF (the nonlinear force is largely coherent with the input,
@@ -38,6 +40,7 @@ import numpy as np
 from fnsi.measurement import Layout, Measurement
 from fnsi.modal import Coefficient, ModalTable, modal_table, nonlinear_coefficients
 from fnsi.nonlinear import NonlinearElement
+from fnsi.refinement import Refinement, refine
 from fnsi.spectra import (
     LINE_SETS,
     Spectra,
@@ -123,6 +126,16 @@ class IdentificationSettings:
         errors 0.2-3.2 % -> up to 17 %, cause not yet established).
     memory_limit_mb : float
         Refuse problems whose FNSI working memory estimate exceeds this [MiB].
+    refine : bool
+        Refine the identified model by minimising its simulation error on the estimation
+        data (:func:`fnsi.refinement.refine`): the returned ``model`` then simulates the
+        structure far better when the elements drive it outside the band or the bases are
+        noisy (SmallSat single, 39 outputs, true stop: validation NRMSE 4.9 % -> 0.37 %,
+        noise floor 0.24 %), at the cost of seconds to a minute. The modes, coefficients
+        and stiffness curves stay FNSI's: the output-error fit does not keep the structure
+        of Eq. 17 that the driving-point coefficient relies on. Models with a
+        velocity-dependent element (Coulomb friction, quadratic damping) are not refined
+        (``refinement`` stays None).
     """
 
     band: tuple[float, float]
@@ -139,6 +152,7 @@ class IdentificationSettings:
     average_bases: bool = True
     compensate_basis_noise: bool = False
     memory_limit_mb: float = 8192.0
+    refine: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -256,6 +270,7 @@ class IdentificationResult:
     timings: dict[str, float]
     singular_values: np.ndarray = field(default_factory=lambda: np.zeros(0))
     settings: IdentificationSettings | None = None
+    refinement: Refinement | None = None
 
     def to_json(self) -> dict:
         """JSON-ready result (complex shapes as [re, im] pairs)."""
@@ -277,6 +292,7 @@ class IdentificationResult:
             "timings_s": dict(self.timings),
             "model": self.model.to_json(),
             "settings": None if self.settings is None else self.settings.to_json(),
+            "refinement": None if self.refinement is None else self.refinement.to_json(),
         }
 
 
@@ -496,8 +512,17 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     clock.done("model", 0.85, "B and D estimated")
     result = _physical(model, spectra, decomposition, settings, elements, ranges, order,
                        diagram, clock.timings)
-    clock.done("physical", 1.0, "modal parameters and coefficients done")
-    return result
+    clock.done("physical", 0.9 if settings.refine else 1.0,
+               "modal parameters and coefficients done")
+    if not settings.refine or any(e.needs_velocity for e in elements):
+        return result
+    refinement = refine(result.model, data, discard_periods=settings.discard_periods,
+                        band_high=settings.band[1],
+                        progress=None if progress is None else
+                        lambda f, m: progress(0.9 + 0.1 * f, m))
+    clock.done("refinement", 1.0, f"simulation error {refinement.initial_percent:.3g} % -> "
+               f"{refinement.final_percent:.3g} %")
+    return dataclasses.replace(result, model=refinement.model, refinement=refinement)
 
 
 def _physical(model: StateSpaceModel, spectra: Spectra, decomposition: SubspaceDecomposition,

@@ -201,11 +201,12 @@ def element_force(kind, params, p, coefficients, c, n_basis, x, v):
 
 
 @njit(cache=True)
-def _basis_matrix(kind, params, n_basis, x, v):
+def _basis_matrix(kind, params, n_basis, x, v, derivative):
+    """g_j (derivative 0), dg_j/dx (1) or dg_j/dv (2) at every sample, (samples, n_basis)."""
     out = np.empty((x.shape[0], n_basis))
     for i in range(x.shape[0]):
         for j in range(n_basis):
-            out[i, j] = basis_value(kind, params, 0, j, x[i], v[i])[0]
+            out[i, j] = basis_value(kind, params, 0, j, x[i], v[i])[derivative]
     return out
 
 
@@ -543,7 +544,22 @@ class NonlinearElement:
         [0.0, 0.0, 2.0]
         """
         x, v = self._samples(x, v)
-        return _basis_matrix(self.kernel_kind, self.kernel_parameters, self.n_basis, x, v)
+        return _basis_matrix(self.kernel_kind, self.kernel_parameters, self.n_basis, x, v, 0)
+
+    def basis_slopes(self, x, v=None) -> np.ndarray:
+        """Derivatives dg_j/dx of the basis functions with respect to the relative
+        displacement, shape (samples, n_basis) (zero for velocity-dependent kinds).
+
+        Parameters are those of :meth:`basis`.
+
+        Examples
+        --------
+        >>> e = NonlinearElement("clearance", "a", gap=1.0, side="positive")
+        >>> e.basis_slopes(np.array([-3.0, 0.5, 3.0]))[:, 0].tolist()
+        [0.0, 0.0, 1.0]
+        """
+        x, v = self._samples(x, v)
+        return _basis_matrix(self.kernel_kind, self.kernel_parameters, self.n_basis, x, v, 1)
 
     def force(self, x, v=None) -> np.ndarray:
         """Restoring force f = sum_j mu_j g_j(x, v) (Eq. 2), shape (samples,)."""

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from fnsi.nonlinear import basis_value
+from fnsi.nonlinear import NonlinearElement, basis_value
 from fnsi.statespace import StateSpaceModel
 
 _OK, _DIVERGED, _NOT_CONVERGED = 0, 1, 2
@@ -128,14 +128,19 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
     return _OK, n_samples
 
 
-def _element_tables(model: StateSpaceModel) -> tuple[np.ndarray, ...]:
-    """Kernel inputs of the model's elements: kinds, parameters, offsets, incidence P.
+def element_incidence(elements: tuple[NonlinearElement, ...] | list[NonlinearElement],
+                      output_names: list[str] | tuple[str, ...]) -> np.ndarray:
+    """Incidence P (E, l) mapping outputs to the relative displacement dof - ref of each
+    element.
 
-    P (E, l) maps the outputs to the relative displacement dof - ref of each element.
+    Raises
+    ------
+    ValueError
+        If an element acts on a channel that is not among ``output_names``.
     """
-    names = list(model.output_names)
-    P = np.zeros((len(model.elements), len(names)))
-    for e, element in enumerate(model.elements):
+    names = list(output_names)
+    P = np.zeros((len(elements), len(names)))
+    for e, element in enumerate(elements):
         for channel, sign in ((element.dof, 1.0), (element.ref, -1.0)):
             if channel is None:
                 continue
@@ -145,13 +150,18 @@ def _element_tables(model: StateSpaceModel) -> tuple[np.ndarray, ...]:
                     f"model {names}; FNSI needs both ends of an element measured"
                 )
             P[e, names.index(channel)] = sign
+    return P
+
+
+def _element_tables(model: StateSpaceModel) -> tuple[np.ndarray, ...]:
+    """Kernel inputs of the model's elements: kinds, parameters, offsets, incidence P."""
     parameters = [element.kernel_parameters for element in model.elements]
     return (
         np.array([element.kernel_kind for element in model.elements], dtype=np.int64),
         np.concatenate([np.zeros(0), *parameters]),
         np.cumsum([0] + [p.size for p in parameters]).astype(np.int64),
         np.cumsum([0] + [e.n_basis for e in model.elements]).astype(np.int64),
-        P,
+        element_incidence(model.elements, model.output_names),
     )
 
 

@@ -117,6 +117,13 @@ class IdentificationRequest(BaseModel):
                                  "transient.", examples=[1])
     weighting: StrictBool = Field(False, description="Weight the data by the noise covariance "
                             "estimated from the periods.")
+    refine: StrictBool = Field(
+        False, description="Refine the identified model by minimising its simulation error "
+        "on the estimation data (output error): the model, its simulation and its errors "
+        "get much closer to the measurement when the elements drive the structure outside "
+        "the band or the bases are noisy; modes and coefficients stay FNSI's. Takes seconds "
+        "to a minute. Models with velocity-dependent elements (friction, quadratic damping) are "
+        "not refined (result.refinement null).")
     elements: list[NonlinearElementSpec] = Field(
         default_factory=list, max_length=100, description="Nonlinear elements whose "
         "coefficients are "

@@ -98,6 +98,19 @@ class IdentificationErrors(_Document):
                                             "(present when one was given).")
 
 
+class RefinementSummary(_Document):
+    """How the output-error refinement changed the model's simulation error on the
+    estimation data (requests with refine: true)."""
+
+    initial_percent: float = Field(description="Simulation error of the FNSI model on the "
+                                   "residual lines [%].")
+    final_percent: float = Field(description="The same after refinement [%].")
+    iterations: int = Field(description="Accepted trust-region steps.")
+    evaluations: int = Field(description="Steady-state simulations run.")
+    seconds: float = Field(description="Wall time [s].")
+    message: str = Field(description="Why the minimisation stopped.")
+
+
 class IdentificationJobResult(_Document):
     """Result of an identification job: result.json without the model matrices,
     stabilisation diagram and singular values (download result.json or model.npz)."""
@@ -113,6 +126,8 @@ class IdentificationJobResult(_Document):
     settings: dict[str, Any] | None = Field(description="Identification settings used, "
                                             "spline knots resolved.")
     errors: IdentificationErrors = Field(description="Simulation errors of the model.")
+    refinement: RefinementSummary | None = Field(
+        None, description="Output-error refinement; null when not requested.")
 
 
 class RevisionSummary(_Document, RevisionRecord):

@@ -1,0 +1,622 @@
+"""Output-error refinement of an identified model: minimise the simulation error.
+
+FNSI (paper Eq. 9-14) fits an equation error in the analysis band, with the basis
+functions g(y) evaluated on the *measured* outputs. Two things limit how well the
+resulting model simulates: the bases carry the measurement noise (errors in variables,
+which scatter and attenuate the coefficients), and nothing in the fit looks at the
+closed loop, where the nonlinear forces drive the structure outside the band and feed
+back into the elements. Refinement starts from the FNSI model and minimises what a user
+compares in the end, the error of the *simulated* steady-state response to the measured
+input (the output-error or simulation-error criterion of PNLSS-type tools),
+
+    V(theta) = sum_r sum_k sum_o |w(k) Y_o^sim(k, theta) - Y_o^meas(k)|^2,
+
+over the realisations r, the DFT lines k from 1 up to ``ERROR_BAND_FACTOR`` times the
+band's upper edge and the outputs o, with Y^meas the period average of the kept periods
+and w(k) = (j omega_k)^d turning the model's displacements into the measured quantity.
+The bases are evaluated on simulated outputs, so measurement noise no longer enters them
+and the estimate is consistent for output noise.
+
+Parametrisation. The model is brought to real modal form: A = blockdiag of 2 x 2 blocks
+[[a, b], [-b, a]] (a pole pair a +- jb of z) and 1 x 1 blocks for real poles. The
+parameters theta are a and b of every block, B^e, and the rows of C and D^e of the *loop
+outputs*, the channels the elements act on. The other rows of C and D^e do not feed back:
+for a given state trajectory they are a linear least-squares problem, solved at every
+evaluation and eliminated (variable projection, Golub and Pereyra), with Kaufman's
+exact Jacobian.
+
+Jacobian. In periodic steady state the outputs are exactly Y = H(z) E with E = [U; G],
+H = C (zI - A)^-1 B^e + D^e, so every derivative is a resolvent product on the lines,
+except for the closed loop through the bases: a change of theta changes the relative
+displacements z_e(t), hence G. That loop is a linear time-varying recursion, run for all
+parameters at once in a compiled kernel (``_closed_loop``); its open-loop forcing comes
+from the frequency domain. The minimisation is SciPy's trust-region least squares.
+
+Scope: elements that depend on displacement only (polynomial, clearance, piecewise
+linear, spline). Coulomb friction and quadratic damping depend on the velocity, which the
+simulator takes by a central difference inside its implicit step; their sensitivities are
+not derived here and such models are refused with a message.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy.linalg import solve_triangular
+from scipy.optimize import least_squares
+
+from fnsi.measurement import Measurement
+from fnsi.simulation import SimulationDivergedError, element_incidence, simulate_periodic
+from fnsi.spectra import INTEGRATIONS, kept_record
+from fnsi.statespace import StateSpaceModel
+
+Progress = Callable[[float, str], None]
+
+#: The residual lines reach this multiple of the band's upper edge (the error band of
+#: :func:`fnsi.validation.compare`), so harmonics the elements create count too.
+RESIDUAL_BAND_FACTOR = 3.0
+#: Largest closed-loop sensitivity array (samples x elements x parameters) allowed.
+MAX_SENSITIVITY_VALUES = 200_000_000
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """A refined model and how the simulation error changed.
+
+    Attributes
+    ----------
+    model : StateSpaceModel
+        Refined model, in real modal coordinates (same poles order as the blocks of the
+        starting model's real modal form); the starting model in that form, its unstable
+        poles reflected (:func:`reflect_unstable_poles`), when nothing improved.
+    initial_percent, final_percent : float
+        Simulation error of the estimation data before and after, on the residual lines:
+        sqrt(sum |residual|^2 / sum |Y^meas|^2) over all outputs [%].
+    iterations : int
+        Accepted trust-region steps.
+    evaluations : int
+        Steady-state simulations of the model.
+    seconds : float
+        Wall time [s].
+    message : str
+        Why the minimisation stopped, in words.
+    """
+
+    model: StateSpaceModel
+    initial_percent: float
+    final_percent: float
+    iterations: int
+    evaluations: int
+    seconds: float
+    message: str
+
+    def to_json(self) -> dict:
+        """JSON-ready summary (without the model)."""
+        return {"initial_percent": float(self.initial_percent),
+                "final_percent": float(self.final_percent), "iterations": self.iterations,
+                "evaluations": self.evaluations, "seconds": float(self.seconds),
+                "message": self.message}
+
+
+# -- real modal form ----------------------------------------------------------------------------
+def real_modal_form(model: StateSpaceModel) -> tuple[StateSpaceModel, np.ndarray]:
+    """The model in real modal coordinates and its block sizes.
+
+    Parameters
+    ----------
+    model : StateSpaceModel
+
+    Returns
+    -------
+    StateSpaceModel
+        Similar model with A = blockdiag([[a, b], [-b, a]] per complex pair, [a] per real
+        pole), pairs first in descending |b|.
+    ndarray of int, shape (blocks,)
+        Size (1 or 2) of each diagonal block.
+
+    Raises
+    ------
+    ValueError
+        If A is defective (repeated poles without a full set of eigenvectors).
+    """
+    lam, V = np.linalg.eig(model.A)
+    upper = np.flatnonzero(lam.imag > 1e-12 * np.maximum(np.abs(lam), 1e-300))
+    real = np.flatnonzero(np.abs(lam.imag) <= 1e-12 * np.maximum(np.abs(lam), 1e-300))
+    upper = upper[np.argsort(-lam[upper].imag)]
+    columns = [c for k in upper for c in (V[:, k].real, V[:, k].imag)]
+    columns += [V[:, k].real for k in real]
+    T = np.column_stack(columns) if columns else np.zeros((0, 0))
+    if T.shape != model.A.shape or np.linalg.cond(T) > 1e12:
+        raise ValueError("the model's A has repeated poles without independent modes; "
+                         "refinement needs a diagonalisable A: choose another order")
+    Ti = np.linalg.inv(T)
+    A = np.zeros_like(model.A)
+    for k, pole in enumerate(lam[upper]):
+        A[2 * k: 2 * k + 2, 2 * k: 2 * k + 2] = [[pole.real, pole.imag], [-pole.imag, pole.real]]
+    for k, pole in enumerate(lam[real]):
+        A[2 * upper.size + k, 2 * upper.size + k] = pole.real
+    sizes = np.array([2] * upper.size + [1] * real.size, dtype=np.int64)
+    modal = StateSpaceModel(A=A, B=Ti @ model.B, C=model.C @ T, D=model.D.copy(), fs=model.fs,
+                            input_names=model.input_names, output_names=model.output_names,
+                            elements=model.elements)
+    return modal, sizes
+
+
+def reflect_unstable_poles(model: StateSpaceModel, sizes: np.ndarray) -> StateSpaceModel:
+    """A real modal form with every pole outside the unit circle reflected inside.
+
+    lambda -> lambda / |lambda|^2 keeps the pole's frequency and flips the sign of its
+    damping: a spurious unstable pole (FNSI fits the band, not stability) becomes a
+    stable one of the same frequency, which refinement then adjusts. The magnitude of the
+    frequency response is unchanged on the unit circle up to a constant per pole.
+    """
+    A = model.A.copy()
+    for block in _block_slices(sizes):
+        radius2 = float(np.sum(A[block.start, block] ** 2))
+        if radius2 >= 1.0:
+            A[block, block] /= radius2
+    return StateSpaceModel(A=A, B=model.B, C=model.C, D=model.D, fs=model.fs,
+                           input_names=model.input_names, output_names=model.output_names,
+                           elements=model.elements)
+
+
+def _block_slices(sizes: np.ndarray) -> list[slice]:
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    return [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
+
+
+def _resolvent(a: float, b: float, size: int, z: np.ndarray) -> np.ndarray:
+    """(z I - A_block)^-1 on the lines, shape (lines, size, size) (closed form)."""
+    if size == 1:
+        return (1.0 / (z - a))[:, None, None]
+    d = 1.0 / ((z - a) ** 2 + b * b)
+    out = np.empty((z.size, 2, 2), dtype=complex)
+    out[:, 0, 0] = out[:, 1, 1] = (z - a) * d
+    out[:, 0, 1] = b * d
+    out[:, 1, 0] = -b * d
+    return out
+
+
+# -- parameters ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Layout:
+    """Where each parameter sits in theta."""
+
+    sizes: np.ndarray          # block sizes
+    n_inputs_ext: int          # q = m + s
+    loop: np.ndarray           # indices of the loop outputs in the model's outputs
+
+    @property
+    def n(self) -> int:
+        return int(self.sizes.sum())
+
+    @property
+    def n_block(self) -> int:
+        return int(self.sizes.sum())   # a (and b) per block: one parameter per state
+
+    @property
+    def slices(self) -> tuple[slice, slice, slice, slice]:
+        n, q, L = self.n, self.n_inputs_ext, self.loop.size
+        ends = np.cumsum([self.n_block, n * q, L * n, L * q])
+        return (slice(0, ends[0]), slice(ends[0], ends[1]), slice(ends[1], ends[2]),
+                slice(ends[2], ends[3]))
+
+    @property
+    def size(self) -> int:
+        return self.slices[3].stop
+
+    def pack(self, model: StateSpaceModel) -> np.ndarray:
+        poles = []
+        for block, s in zip(_block_slices(self.sizes), self.sizes, strict=True):
+            poles += [model.A[block.start, block.start]]
+            if s == 2:
+                poles += [model.A[block.start, block.start + 1]]
+        return np.concatenate([poles, model.B.ravel(), model.C[self.loop].ravel(),
+                               model.D[self.loop].ravel()])
+
+    def blocks(self, theta: np.ndarray) -> list[tuple[slice, float, float, int]]:
+        """(state slice, a, b, size) of every block."""
+        out, k = [], 0
+        for block, s in zip(_block_slices(self.sizes), self.sizes, strict=True):
+            out.append((block, theta[k], theta[k + 1] if s == 2 else 0.0, int(s)))
+            k += int(s)
+        return out
+
+    def matrices(self, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+        """A, B^e, loop rows of C and of D^e."""
+        n, q, L = self.n, self.n_inputs_ext, self.loop.size
+        A = np.zeros((n, n))
+        for block, a, b, s in self.blocks(theta):
+            A[block, block] = [[a, b], [-b, a]] if s == 2 else a
+        _sb, sB, sC, sD = self.slices
+        return A, theta[sB].reshape(n, q), theta[sC].reshape(L, n), theta[sD].reshape(L, q)
+
+
+# -- closed-loop sensitivity --------------------------------------------------------------------
+@numba.njit(cache=True)
+def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, passes):
+    """Sensitivities dz (samples, E, p) of the elements' relative displacements.
+
+    Per sample k of the periodic steady state and parameter p, with xi the state
+    sensitivity driven by the bases' change w = G'(k) dz:
+    dz = M_inv(k) (forcing(k) + PC xi),  xi <- A xi + Bg w,
+    M_inv(k) = (I - P D^e_g G'(k))^-1. The recursion runs ``passes`` periods so that the
+    start-up transient has died out; the last one is returned.
+    """
+    N, E, P = forcing.shape
+    n = Bg.shape[0]
+    s = Bg.shape[1]
+    xi = np.zeros((n, P))
+    out = np.empty((N, E, P))
+    acc = np.empty(E)
+    w = np.empty(s)
+    new = np.empty(n)
+    for step in range(passes * N):
+        k = step % N
+        for p in range(P):
+            for e in range(E):
+                total = forcing[k, e, p]
+                for i in range(n):
+                    total += PC[e, i] * xi[i, p]
+                acc[e] = total
+            for e in range(E):
+                total = 0.0
+                for f in range(E):
+                    total += M_inv[k, e, f] * acc[f]
+                out[k, e, p] = total
+            for j in range(s):
+                w[j] = slopes[k, j] * out[k, basis_element[j], p]
+            i = 0
+            for blk in range(sizes.shape[0]):
+                if sizes[blk] == 2:
+                    x0 = xi[i, p]
+                    x1 = xi[i + 1, p]
+                    new[i] = a[blk] * x0 + b[blk] * x1
+                    new[i + 1] = -b[blk] * x0 + a[blk] * x1
+                    i += 2
+                else:
+                    new[i] = a[blk] * xi[i, p]
+                    i += 1
+            for i in range(n):
+                total = new[i]
+                for j in range(s):
+                    total += Bg[i, j] * w[j]
+                xi[i, p] = total
+    return out
+
+
+# -- the problem --------------------------------------------------------------------------------
+class _Problem:
+    """Residual and Jacobian of the output-error criterion for one model structure."""
+
+    def __init__(self, start: StateSpaceModel, sizes: np.ndarray, u: np.ndarray,
+                 y: np.ndarray, lines: np.ndarray, derivative: int) -> None:
+        self.start = start
+        names = list(start.output_names)
+        loop = sorted({names.index(c) for e in start.elements for c in (e.dof, e.ref)
+                       if c is not None})
+        self.layout = _Layout(sizes, start.B.shape[1], np.array(loop, dtype=np.int64))
+        self.other = np.array([k for k in range(len(names)) if k not in loop], dtype=np.int64)
+        self.P = element_incidence(start.elements, [names[k] for k in loop])   # (E, L)
+        self.u = u                        # (R, N, m)
+        self.N = u.shape[1]
+        self.z = np.exp(2j * np.pi * np.arange(self.N // 2 + 1) / self.N)
+        self.lines = lines
+        omega = 2 * np.pi * start.fs * lines / self.N
+        self.weight = (1j * omega) ** derivative          # displacement -> measured quantity
+        self.Y = np.fft.rfft(y, axis=1)[:, lines]         # (R, K, l)
+        self.scale = np.sqrt(np.sum(np.abs(self.Y) ** 2))
+        self.basis_element = np.concatenate(
+            [np.full(e.n_basis, k) for k, e in enumerate(start.elements)]).astype(np.int64) \
+            if start.elements else np.zeros(0, dtype=np.int64)
+        self.simulations = 0
+        self._cache: tuple[bytes, dict] | None = None
+
+    # one evaluation: simulate, project, keep what the Jacobian needs
+    def evaluate(self, theta: np.ndarray) -> dict:
+        key = theta.tobytes()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        radius = max(np.hypot(a, b) for _, a, b, _ in self.layout.blocks(theta))
+        if radius >= 1.0:
+            raise SimulationDivergedError(f"a pole left the unit circle (|z| = {radius:.6f})")
+        A, B, CL, DL = self.layout.matrices(theta)
+        state = {"theta": theta, "A": A, "B": B, "CL": CL, "DL": DL, "E": [], "slopes": []}
+        loop_names = tuple(self.start.output_names[k] for k in self.layout.loop)
+        if self.start.elements:
+            loop_model = StateSpaceModel(A=A, B=B, C=CL, D=DL, fs=self.start.fs,
+                                         input_names=self.start.input_names,
+                                         output_names=loop_names, elements=self.start.elements)
+        for r in range(self.u.shape[0]):
+            if self.start.elements:
+                yl = simulate_periodic(loop_model, self.u[r]).y
+                self.simulations += 1
+                zt = yl @ self.P.T                                        # (N, E)
+                g = np.concatenate([e.basis(zt[:, k]) for k, e in
+                                    enumerate(self.start.elements)], axis=1)
+                slopes = np.concatenate([e.basis_slopes(zt[:, k]) for k, e in
+                                         enumerate(self.start.elements)], axis=1)
+                state["slopes"].append(slopes)
+                e_t = np.concatenate([self.u[r], g], axis=1)
+            else:
+                e_t = self.u[r]
+            state["E"].append(np.fft.rfft(e_t, axis=0))                  # (N/2+1, q)
+        E = np.stack(state["E"])                                          # (R, all, q)
+        X = self._states_on(state, E[:, self.lines], self.z[self.lines])  # (R, K, n)
+        state["X"] = X
+        # variable projection: the other rows of C and D^e by linear least squares
+        Phi = self.weight[None, :, None] * np.concatenate([X, E[:, self.lines]], axis=2)
+        rows = np.concatenate([Phi.real, Phi.imag], axis=1).reshape(-1, Phi.shape[2])
+        target = self.Y[:, :, self.other]
+        t_rows = np.concatenate([target.real, target.imag], axis=1).reshape(-1, self.other.size)
+        Q, Rm = np.linalg.qr(rows)
+        coef = np.linalg.lstsq(Rm, Q.T @ t_rows, rcond=None)[0] if self.other.size else \
+            np.zeros((rows.shape[1], 0))
+        state["Q"], state["R"], state["coef"] = Q, Rm, coef
+        residual = np.empty(self.Y.shape, dtype=complex)
+        Yl = X @ CL.T + E[:, self.lines] @ DL.T
+        loop = self.layout.loop
+        residual[:, :, loop] = self.weight[None, :, None] * Yl - self.Y[:, :, loop]
+        residual[:, :, self.other] = Phi @ coef - target
+        state["residual"] = residual
+        self._cache = (key, state)
+        return state
+
+    def residual(self, theta: np.ndarray) -> np.ndarray:
+        try:
+            r = self.evaluate(theta)["residual"]
+        except (SimulationDivergedError, np.linalg.LinAlgError):
+            # a trial step that destabilised the model: a large residual makes the trust
+            # region shrink back
+            return np.full(2 * self.Y.size, 10.0 * self.scale / np.sqrt(2 * self.Y.size))
+        return np.concatenate([r.real.ravel(), r.imag.ravel()]) / self.scale
+
+    def percent(self, theta: np.ndarray) -> float:
+        return float(100.0 * np.linalg.norm(self.residual(theta)))
+
+    # -- Jacobian -------------------------------------------------------------------------------
+    def _state_sensitivity(self, state: dict, X: np.ndarray, E: np.ndarray,
+                           z: np.ndarray) -> np.ndarray:
+        """Open-loop dX/dtheta (bases held fixed) on some lines, (R, K, n, p_dynamic)."""
+        layout = self.layout
+        q = layout.n_inputs_ext
+        start_B = layout.slices[1].start
+        dX = np.zeros((*X.shape, layout.slices[1].stop), dtype=complex)
+        turn = np.array([[0.0, 1.0], [-1.0, 0.0]])        # dA_block / db
+        k = 0
+        for block, a, b, s in layout.blocks(state["theta"]):
+            R = _resolvent(a, b, s, z)
+            Xb = X[:, :, block]
+            dX[:, :, block, k] = np.einsum("kij,rkj->rki", R, Xb, optimize=True)
+            if s == 2:
+                dX[:, :, block, k + 1] = np.einsum("kij,rkj->rki", R, Xb @ turn.T, optimize=True)
+            for local, i in enumerate(range(block.start, block.stop)):
+                cols = slice(start_B + i * q, start_B + (i + 1) * q)
+                dX[:, :, block, cols] = R[None, :, :, local, None] * E[:, :, None, :]
+            k += s
+        return dX
+
+    def _output_terms(self, dX: np.ndarray, X: np.ndarray, E: np.ndarray, rows: np.ndarray,
+                      C: np.ndarray) -> np.ndarray:
+        """d(rows @ y_loop)/dtheta with the bases held fixed, (R, K, len(rows), p)."""
+        layout = self.layout
+        n, q, p = layout.n, layout.n_inputs_ext, layout.size
+        out = np.zeros((*X.shape[:2], rows.shape[0], p), dtype=complex)
+        out[..., :dX.shape[3]] = np.einsum("ei,rkip->rkep", rows @ C, dX, optimize=True)
+        sC, sD = layout.slices[2], layout.slices[3]
+        for a in range(layout.loop.size):
+            out[..., sC.start + a * n: sC.start + (a + 1) * n] += \
+                rows[None, None, :, a, None] * X[:, :, None, :]
+            out[..., sD.start + a * q: sD.start + (a + 1) * q] += \
+                rows[None, None, :, a, None] * E[:, :, None, :]
+        return out
+
+    def _basis_sensitivity(self, state: dict) -> np.ndarray:
+        """dG/dtheta on the residual lines through the closed loop, (R, K, s, p)."""
+        layout = self.layout
+        m, p = self.start.n_inputs, layout.size
+        E_all = np.stack(state["E"])
+        n_lines = E_all.shape[1]
+        A, Bg = state["A"], state["B"][:, m:]
+        PC = self.P @ state["CL"]
+        PDg = self.P @ state["DL"][:, m:]
+        sizes = layout.sizes
+        a = np.array([blk[1] for blk in layout.blocks(state["theta"])])
+        b = np.array([blk[2] for blk in layout.blocks(state["theta"])])
+        radius = max(np.max(np.abs(np.linalg.eigvals(A))), 1e-300)
+        settle = np.log(1e-10) / np.log(radius) if radius < 1 else np.inf
+        passes = int(min(1 + np.ceil(settle / self.N), 20))
+        out = []
+        for r in range(self.u.shape[0]):
+            forcing = np.empty((n_lines, self.P.shape[0], p), dtype=complex)
+            chunk = 2048
+            for lo in range(0, n_lines, chunk):
+                part = slice(lo, min(lo + chunk, n_lines))
+                E = E_all[r:r + 1, part]
+                X = self._states_on(state, E, self.z[part])
+                dX = self._state_sensitivity(state, X, E, self.z[part])
+                forcing[part] = self._output_terms(dX, X, E, self.P, state["CL"])[0]
+            forcing_t = np.fft.irfft(forcing, n=self.N, axis=0)            # (N, E, p)
+            slopes = state["slopes"][r]
+            gprime = np.zeros((self.N, Bg.shape[1], self.P.shape[0]))
+            gprime[:, np.arange(Bg.shape[1]), self.basis_element] = slopes
+            M_inv = np.linalg.inv(np.eye(self.P.shape[0]) - PDg @ gprime)   # (N, E, E)
+            dz = _closed_loop(a, b, sizes, np.ascontiguousarray(Bg), np.ascontiguousarray(PC),
+                              M_inv, np.ascontiguousarray(slopes), self.basis_element,
+                              np.ascontiguousarray(forcing_t), passes)
+            dg = slopes[:, :, None] * dz[:, self.basis_element, :]          # (N, s, p)
+            out.append(np.fft.rfft(dg, axis=0)[self.lines])
+        return np.stack(out)
+
+    def _states_on(self, state: dict, E: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """X = (zI - A)^-1 B^e E on the lines z, (R, K, n)."""
+        X = np.zeros((*E.shape[:2], self.layout.n), dtype=complex)
+        for block, a, b, s in self.layout.blocks(state["theta"]):
+            X[:, :, block] = np.einsum("kij,rkj->rki", _resolvent(a, b, s, z),
+                                       E @ state["B"][block].T)
+        return X
+
+    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        state = self.evaluate(theta)
+        layout = self.layout
+        m, p = self.start.n_inputs, layout.size
+        E = np.stack(state["E"])[:, self.lines]
+        X, z = state["X"], self.z[self.lines]
+        dX = np.zeros((*X.shape, p), dtype=complex)
+        dynamic = self._state_sensitivity(state, X, E, z)
+        dX[..., :dynamic.shape[3]] = dynamic
+        dE = np.zeros((*E.shape, p), dtype=complex)
+        if self.start.elements:
+            dG = self._basis_sensitivity(state)                              # (R, K, s, p)
+            dE[:, :, m:] = dG
+            for block, a, b, s in layout.blocks(theta):
+                RBg = _resolvent(a, b, s, z) @ state["B"][block, m:]
+                dX[:, :, block] += np.einsum("kis,rksp->rkip", RBg, dG, optimize=True)
+        dR = np.empty((*self.Y.shape, p), dtype=complex)
+        loop = layout.loop
+        eye = np.eye(loop.size)
+        dR[:, :, loop] = self._output_terms(dX, X, E, eye, state["CL"])
+        dR[:, :, loop] += np.einsum("lq,rkqp->rklp", state["DL"], dE, optimize=True)
+        if self.other.size:
+            dR[:, :, self.other] = self._projected_jacobian(state, dX, dE)
+        dR[:, :, loop] *= self.weight[None, :, None, None]
+        return np.concatenate([dR.real.reshape(-1, p), dR.imag.reshape(-1, p)]) / self.scale
+
+    def _projected_jacobian(self, state: dict, dX: np.ndarray, dE: np.ndarray) -> np.ndarray:
+        """Jacobian of the projected residual r = -(I - Pi) Y of the other outputs.
+
+        With Phi = QR the weighted regressors [X, E] and c = Phi^+ Y (Golub and Pereyra):
+        dr/dtheta = (I - Pi) dPhi c - Q R^-T dPhi^T r, in stacked real rows.
+        Returns (R, K, other outputs, p), complex.
+        """
+        R_, K = self.Y.shape[:2]
+        p = dX.shape[3]
+        w = self.weight[None, :, None, None]
+        dPhi = w * np.concatenate([dX, dE], axis=2)                          # (R, K, n+q, p)
+        rows = np.concatenate([dPhi.real, dPhi.imag], axis=1).reshape(R_ * 2 * K, -1, p)
+        coef, Q, Rm = state["coef"], state["Q"], state["R"]
+        residual = state["residual"][:, :, self.other]
+        r = np.concatenate([residual.real, residual.imag], axis=1).reshape(R_ * 2 * K, -1)
+        first = np.einsum("xjp,jo->xop", rows, coef, optimize=True).reshape(R_ * 2 * K, -1)
+        first -= Q @ (Q.T @ first)
+        second = solve_triangular(Rm, np.einsum("xjp,xo->jop", rows, r, optimize=True).reshape(
+            Rm.shape[0], -1), trans="T")
+        stacked = (first - Q @ second).reshape(R_, 2 * K, self.other.size, p)
+        return stacked[:, :K] + 1j * stacked[:, K:]
+
+    def model(self, theta: np.ndarray) -> StateSpaceModel:
+        """The full model at theta: loop rows from theta, the others from the projection."""
+        state = self.evaluate(theta)
+        n = self.layout.n
+        C = np.empty_like(self.start.C)
+        D = np.empty_like(self.start.D)
+        C[self.layout.loop], D[self.layout.loop] = state["CL"], state["DL"]
+        C[self.other], D[self.other] = state["coef"][:n].T, state["coef"][n:].T
+        return StateSpaceModel(A=state["A"], B=state["B"].copy(), C=C, D=D, fs=self.start.fs,
+                               input_names=self.start.input_names,
+                               output_names=self.start.output_names,
+                               elements=self.start.elements)
+
+
+def _averaged_record(model: StateSpaceModel, measurement: Measurement,
+                     discard_periods: int) -> tuple[np.ndarray, np.ndarray, Measurement]:
+    """One steady-state period per realisation: input (R, N, m), period-averaged output."""
+    data = measurement.select(inputs=model.input_names, outputs=model.output_names)
+    kept = data.periods - discard_periods
+    if kept < 1:
+        raise ValueError(f"discard_periods={discard_periods} leaves no period of the "
+                         f"{data.periods} measured; discard fewer")
+    y = kept_record(data.y, data.periods, discard_periods)
+    y = y.reshape(y.shape[0], kept, data.period_length, y.shape[2]).mean(axis=1)
+    return np.ascontiguousarray(data.u[:, -data.period_length:]), y, data
+
+
+def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
+           band_high: float, max_iterations: int = 30, tolerance: float = 1e-3,
+           progress: Progress | None = None) -> Refinement:
+    """Refine a model by minimising its simulation error on periodic data (module docstring).
+
+    Parameters
+    ----------
+    model : StateSpaceModel
+        Starting model, e.g. FNSI's; displacement outputs (its elements' bases act on them).
+    measurement : Measurement
+        The estimation record the model was identified on (periodic, the model's input
+        and output channels).
+    discard_periods : int
+        Leading transient periods left out.
+    band_high : float
+        Upper edge of the identification band [Hz]; the residual reaches
+        ``RESIDUAL_BAND_FACTOR`` times it (at most fs / 2).
+    max_iterations : int
+        Most trust-region iterations.
+    tolerance : float
+        Stop when a step lowers the criterion (the squared error) by less than this
+        fraction.
+    progress : callable(fraction, message), optional
+        Called after every iteration; may raise to cancel.
+
+    Returns
+    -------
+    Refinement
+
+    Raises
+    ------
+    ValueError
+        A velocity-dependent element, a starting model that cannot be simulated, or a
+        problem too large for memory; the message says what to change.
+    """
+    started = time.perf_counter()
+    velocity = [e.name for e in model.elements if e.needs_velocity]
+    if velocity:
+        raise ValueError(f"refinement supports displacement-dependent elements only; "
+                         f"{velocity} depend on the velocity: identify without refinement")
+    if max_iterations < 1:
+        raise ValueError(f"max_iterations must be at least 1; got {max_iterations}")
+    u, y, data = _averaged_record(model, measurement, discard_periods)
+    N = data.period_length
+    top = min(N // 2 - 1, int(np.floor(RESIDUAL_BAND_FACTOR * band_high * N / data.fs)))
+    lines = np.arange(1, top + 1)
+    modal, sizes = real_modal_form(model)
+    modal = reflect_unstable_poles(modal, sizes)
+    problem = _Problem(modal, sizes, u, y, lines, INTEGRATIONS[data.quantity])
+    values = N * max(problem.P.shape[0], 1) * problem.layout.size * (2 if model.elements else 0)
+    if values > MAX_SENSITIVITY_VALUES:
+        raise ValueError(f"refining this model needs about {8 * values / 2**30:.1f} GiB of "
+                         "sensitivities; use fewer outputs, elements or a lower order")
+    theta0 = problem.layout.pack(modal)
+    try:
+        initial = 100.0 * np.linalg.norm(problem.evaluate(theta0)["residual"]) / problem.scale
+    except SimulationDivergedError as error:
+        raise ValueError(f"the starting model cannot be simulated, so it cannot be refined: "
+                         f"{error}") from error
+    iteration = [0]
+
+    def report(intermediate_result) -> None:
+        iteration[0] += 1
+        if progress is not None:
+            percent = 100.0 * np.sqrt(2.0 * intermediate_result.cost)
+            progress(min(iteration[0] / max_iterations, 1.0),
+                     f"refinement iteration {iteration[0]}: simulation error {percent:.3g} %")
+        if iteration[0] >= max_iterations:
+            raise StopIteration
+
+    # max_nfev only bounds the trial steps the trust region rejects; the callback counts
+    # the accepted iterations
+    solution = least_squares(problem.residual, theta0, jac=problem.jacobian, method="trf",
+                             x_scale="jac", ftol=tolerance, xtol=1e-10, gtol=1e-10,
+                             max_nfev=5 * max_iterations + 10, callback=report)
+    final = 100.0 * np.sqrt(2.0 * solution.cost)
+    if not final < initial:
+        return Refinement(modal, initial, initial, iteration[0],
+                          problem.simulations, time.perf_counter() - started,
+                          "no step lowered the simulation error; the model is kept (in "
+                          "modal form, unstable poles reflected)")
+    return Refinement(problem.model(solution.x), initial, final, iteration[0],
+                      problem.simulations, time.perf_counter() - started,
+                      solution.message)
