@@ -60,6 +60,12 @@ Progress = Callable[[float, str], None]
 #: The residual lines reach this multiple of the band's upper edge (the error band of
 #: :func:`fnsi.validation.compare`), so harmonics the elements create count too.
 RESIDUAL_BAND_FACTOR = 3.0
+#: A refined model's transients must decay by 1e-6 within this many periods (half of
+#: :func:`fnsi.simulation.simulate_periodic`'s default limit).
+SETTLE_PERIODS = 50
+#: Refinement stops when this many accepted steps together lower the criterion by less
+#: than the tolerance.
+STALL_WINDOW = 3
 #: Largest closed-loop sensitivity array (samples x elements x parameters) allowed.
 MAX_SENSITIVITY_VALUES = 200_000_000
 
@@ -147,19 +153,24 @@ def real_modal_form(model: StateSpaceModel) -> tuple[StateSpaceModel, np.ndarray
     return modal, sizes
 
 
-def reflect_unstable_poles(model: StateSpaceModel, sizes: np.ndarray) -> StateSpaceModel:
-    """A real modal form with every pole outside the unit circle reflected inside.
+def reflect_unstable_poles(model: StateSpaceModel, sizes: np.ndarray,
+                           max_radius: float = 1.0) -> StateSpaceModel:
+    """A real modal form with every pole brought inside the circle |z| <= max_radius.
 
-    lambda -> lambda / |lambda|^2 keeps the pole's frequency and flips the sign of its
-    damping: a spurious unstable pole (FNSI fits the band, not stability) becomes a
-    stable one of the same frequency, which refinement then adjusts. The magnitude of the
-    frequency response is unchanged on the unit circle up to a constant per pole.
+    A pole outside the unit circle is reflected, lambda -> lambda / |lambda|^2: its
+    frequency is kept and its damping changes sign, so a spurious unstable pole (FNSI fits
+    the band, not stability) becomes a stable one of the same frequency, which refinement
+    then adjusts. A pole between ``max_radius`` and 1 is moved onto that circle (its
+    damping raised to the least that lets the periodic steady state settle).
     """
     A = model.A.copy()
     for block in _block_slices(sizes):
-        radius2 = float(np.sum(A[block.start, block] ** 2))
-        if radius2 >= 1.0:
-            A[block, block] /= radius2
+        radius = float(np.sqrt(np.sum(A[block.start, block] ** 2)))
+        if radius >= 1.0:
+            A[block, block] /= radius**2
+            radius = 1.0 / radius
+        if radius > max_radius:
+            A[block, block] *= max_radius / radius
     return StateSpaceModel(A=A, B=model.B, C=model.C, D=model.D, fs=model.fs,
                            input_names=model.input_names, output_names=model.output_names,
                            elements=model.elements)
@@ -239,14 +250,14 @@ class _Layout:
 
 # -- closed-loop sensitivity --------------------------------------------------------------------
 @numba.njit(cache=True)
-def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, passes):
+def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, warmup):
     """Sensitivities dz (samples, E, p) of the elements' relative displacements.
 
     Per sample k of the periodic steady state and parameter p, with xi the state
     sensitivity driven by the bases' change w = G'(k) dz:
     dz = M_inv(k) (forcing(k) + PC xi),  xi <- A xi + Bg w,
-    M_inv(k) = (I - P D^e_g G'(k))^-1. The recursion runs ``passes`` periods so that the
-    start-up transient has died out; the last one is returned.
+    M_inv(k) = (I - P D^e_g G'(k))^-1. The periodic recursion starts ``warmup`` samples
+    before the period so that its start-up transient has died out by then.
     """
     N, E, P = forcing.shape
     n = Bg.shape[0]
@@ -256,8 +267,8 @@ def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, pas
     acc = np.empty(E)
     w = np.empty(s)
     new = np.empty(n)
-    for step in range(passes * N):
-        k = step % N
+    for step in range(warmup + N):
+        k = (step - warmup) % N
         for p in range(P):
             for e in range(E):
                 total = forcing[k, e, p]
@@ -295,8 +306,10 @@ class _Problem:
     """Residual and Jacobian of the output-error criterion for one model structure."""
 
     def __init__(self, start: StateSpaceModel, sizes: np.ndarray, u: np.ndarray,
-                 y: np.ndarray, lines: np.ndarray, derivative: int) -> None:
+                 y: np.ndarray, lines: np.ndarray, derivative: int,
+                 max_radius: float) -> None:
         self.start = start
+        self.max_radius = max_radius
         names = list(start.output_names)
         loop = sorted({names.index(c) for e in start.elements for c in (e.dof, e.ref)
                        if c is not None})
@@ -315,6 +328,7 @@ class _Problem:
             [np.full(e.n_basis, k) for k, e in enumerate(start.elements)]).astype(np.int64) \
             if start.elements else np.zeros(0, dtype=np.int64)
         self.simulations = 0
+        self._warm: dict[int, np.ndarray] = {}
         self._cache: tuple[bytes, dict] | None = None
 
     # one evaluation: simulate, project, keep what the Jacobian needs
@@ -323,8 +337,9 @@ class _Problem:
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
         radius = max(np.hypot(a, b) for _, a, b, _ in self.layout.blocks(theta))
-        if radius >= 1.0:
-            raise SimulationDivergedError(f"a pole left the unit circle (|z| = {radius:.6f})")
+        if radius > self.max_radius:
+            raise SimulationDivergedError(f"a pole too close to the unit circle (|z| = "
+                                          f"{radius:.6f}): its transient would not settle")
         A, B, CL, DL = self.layout.matrices(theta)
         state = {"theta": theta, "A": A, "B": B, "CL": CL, "DL": DL, "E": [], "slopes": []}
         loop_names = tuple(self.start.output_names[k] for k in self.layout.loop)
@@ -334,7 +349,12 @@ class _Problem:
                                          output_names=loop_names, elements=self.start.elements)
         for r in range(self.u.shape[0]):
             if self.start.elements:
-                yl = simulate_periodic(loop_model, self.u[r]).y
+                # start from the last steady state: models of nearby parameters settle
+                # in two periods instead of a transient's worth
+                response = simulate_periodic(loop_model, self.u[r],
+                                             initial_state=self._warm.get(r))
+                self._warm[r] = response.final_state
+                yl = response.y
                 self.simulations += 1
                 zt = yl @ self.P.T                                        # (N, E)
                 g = np.concatenate([e.basis(zt[:, k]) for k, e in
@@ -429,8 +449,8 @@ class _Problem:
         a = np.array([blk[1] for blk in layout.blocks(state["theta"])])
         b = np.array([blk[2] for blk in layout.blocks(state["theta"])])
         radius = max(np.max(np.abs(np.linalg.eigvals(A))), 1e-300)
-        settle = np.log(1e-10) / np.log(radius) if radius < 1 else np.inf
-        passes = int(min(1 + np.ceil(settle / self.N), 20))
+        # samples for the slowest pole to decay by 1e-8 (at most 20 periods)
+        warmup = int(min(np.ceil(np.log(1e-8) / np.log(radius)), 20 * self.N))
         out = []
         for r in range(self.u.shape[0]):
             forcing = np.empty((n_lines, self.P.shape[0], p), dtype=complex)
@@ -448,7 +468,7 @@ class _Problem:
             M_inv = np.linalg.inv(np.eye(self.P.shape[0]) - PDg @ gprime)   # (N, E, E)
             dz = _closed_loop(a, b, sizes, np.ascontiguousarray(Bg), np.ascontiguousarray(PC),
                               M_inv, np.ascontiguousarray(slopes), self.basis_element,
-                              np.ascontiguousarray(forcing_t), passes)
+                              np.ascontiguousarray(forcing_t), warmup)
             dg = slopes[:, :, None] * dz[:, self.basis_element, :]          # (N, s, p)
             out.append(np.fft.rfft(dg, axis=0)[self.lines])
         return np.stack(out)
@@ -537,7 +557,7 @@ def _averaged_record(model: StateSpaceModel, measurement: Measurement,
 
 
 def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
-           band_high: float, max_iterations: int = 30, tolerance: float = 1e-3,
+           band_high: float, max_iterations: int = 60, tolerance: float = 3e-3,
            progress: Progress | None = None) -> Refinement:
     """Refine a model by minimising its simulation error on periodic data (module docstring).
 
@@ -556,8 +576,8 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     max_iterations : int
         Most trust-region iterations.
     tolerance : float
-        Stop when a step lowers the criterion (the squared error) by less than this
-        fraction.
+        Stop when ``STALL_WINDOW`` accepted steps together lower the criterion (the
+        squared error) by less than this fraction.
     progress : callable(fraction, message), optional
         Called after every iteration; may raise to cancel.
 
@@ -582,9 +602,12 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     N = data.period_length
     top = min(N // 2 - 1, int(np.floor(RESIDUAL_BAND_FACTOR * band_high * N / data.fs)))
     lines = np.arange(1, top + 1)
+    # poles must let a transient decay by 1e-6 within SETTLE_PERIODS periods, or the
+    # steady state the model is judged by (simulate_periodic) is never reached
+    max_radius = float(np.exp(np.log(1e-6) / (SETTLE_PERIODS * N)))
     modal, sizes = real_modal_form(model)
-    modal = reflect_unstable_poles(modal, sizes)
-    problem = _Problem(modal, sizes, u, y, lines, INTEGRATIONS[data.quantity])
+    modal = reflect_unstable_poles(modal, sizes, max_radius)
+    problem = _Problem(modal, sizes, u, y, lines, INTEGRATIONS[data.quantity], max_radius)
     values = N * max(problem.P.shape[0], 1) * problem.layout.size * (2 if model.elements else 0)
     if values > MAX_SENSITIVITY_VALUES:
         raise ValueError(f"refining this model needs about {8 * values / 2**30:.1f} GiB of "
@@ -595,28 +618,33 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     except SimulationDivergedError as error:
         raise ValueError(f"the starting model cannot be simulated, so it cannot be refined: "
                          f"{error}") from error
-    iteration = [0]
+    costs: list[float] = []
 
     def report(intermediate_result) -> None:
-        iteration[0] += 1
+        costs.append(float(intermediate_result.cost))
         if progress is not None:
-            percent = 100.0 * np.sqrt(2.0 * intermediate_result.cost)
-            progress(min(iteration[0] / max_iterations, 1.0),
-                     f"refinement iteration {iteration[0]}: simulation error {percent:.3g} %")
-        if iteration[0] >= max_iterations:
+            percent = 100.0 * np.sqrt(2.0 * costs[-1])
+            progress(min(len(costs) / max_iterations, 1.0),
+                     f"refinement iteration {len(costs)}: simulation error {percent:.3g} %")
+        # A single step limited by the trust region can gain little while later ones gain
+        # much (SciPy's ftol would stop there): judge progress over a window of steps.
+        window = costs[-1 - STALL_WINDOW:]
+        stalled = (len(window) > STALL_WINDOW
+                   and window[0] - window[-1] < tolerance * window[0])
+        if stalled or len(costs) >= max_iterations:
             raise StopIteration
 
     # max_nfev only bounds the trial steps the trust region rejects; the callback counts
-    # the accepted iterations
+    # the accepted iterations and stops
     solution = least_squares(problem.residual, theta0, jac=problem.jacobian, method="trf",
-                             x_scale="jac", ftol=tolerance, xtol=1e-10, gtol=1e-10,
+                             x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12,
                              max_nfev=5 * max_iterations + 10, callback=report)
     final = 100.0 * np.sqrt(2.0 * solution.cost)
     if not final < initial:
-        return Refinement(modal, initial, initial, iteration[0],
+        return Refinement(modal, initial, initial, len(costs),
                           problem.simulations, time.perf_counter() - started,
                           "no step lowered the simulation error; the model is kept (in "
                           "modal form, unstable poles reflected)")
-    return Refinement(problem.model(solution.x), initial, final, iteration[0],
+    return Refinement(problem.model(solution.x), initial, final, len(costs),
                       problem.simulations, time.perf_counter() - started,
                       solution.message)

@@ -177,11 +177,15 @@ class PeriodicResponse:
         Total number of periods simulated, transient included.
     steady_state_change : float
         RMS difference between the last two periods relative to the RMS output [-].
+    final_state : ndarray, shape (n,)
+        State after the last period: the state at the start of a steady-state period,
+        to start a simulation of a nearby model from (``initial_state``).
     """
 
     y: np.ndarray
     periods_run: int
     steady_state_change: float
+    final_state: np.ndarray
 
 
 def _input_record(model: StateSpaceModel, u: np.ndarray) -> np.ndarray:
@@ -356,6 +360,7 @@ def simulate_periodic(
     feedthrough: str = "implicit",
     max_iterations: int = 50,
     limit_factor: float = 1e3,
+    initial_state: np.ndarray | None = None,
 ) -> PeriodicResponse:
     """Steady-state response to a periodic input.
 
@@ -377,6 +382,9 @@ def simulate_periodic(
         Most periods simulated before giving up (SimulationDivergedError).
     feedthrough, max_iterations, limit_factor
         As in :func:`simulate`.
+    initial_state : ndarray, shape (n,), optional
+        State to start from instead of rest, e.g. the ``final_state`` of a nearby
+        model's steady state: the transient, and so the periods simulated, shrink.
 
     Returns
     -------
@@ -402,6 +410,12 @@ def simulate_periodic(
     simulator = _Simulator(model, np.max(np.abs(record), axis=0), feedthrough=feedthrough,
                            max_iterations=max_iterations, tolerance=1e-10,
                            limit_factor=limit_factor)
+    if initial_state is not None:
+        start = np.asarray(initial_state, dtype=float)
+        if start.shape != (model.order,) or not np.all(np.isfinite(start)):
+            raise ValueError(f"initial_state must hold {model.order} finite values; got "
+                             f"shape {start.shape}")
+        simulator.x[:] = start
     extended = np.vstack((record, record[:1]))   # periodic: u after the period is u[0]
     n = record.shape[0]
     outputs = [simulator.run(extended, 0)]
@@ -413,7 +427,7 @@ def simulate_periodic(
         if change <= tolerance and run >= periods:
             return PeriodicResponse(
                 y=np.concatenate(outputs[-periods:]), periods_run=run + 1,
-                steady_state_change=change,
+                steady_state_change=change, final_state=simulator.x.copy(),
             )
     raise SimulationDivergedError(
         f"no periodic steady state after {max_periods} periods (last period-to-period "

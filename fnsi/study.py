@@ -468,8 +468,9 @@ class Study:
         identification reports no curve for it.
         """
         parent = self.revisions[revision]
+        # the curve comes from FNSI's coefficients, which refinement leaves as they are
         settings = replace(self.settings, elements=(*parent.elements, element),
-                           order=parent.identified_order)
+                           order=parent.identified_order, refine=False)
         result = identify(self.estimation, settings)
         curves = [c for c in result.stiffness if c.element.dof == element.dof
                   and c.element.ref == element.ref and c.element.kind == element.kind]

@@ -50,7 +50,7 @@ def test_jacobian_matches_finite_differences_on_the_loop_outputs(records):
     model = identify(records[0], _settings()).model
     u, y, _ = _averaged_record(model, records[0], 1)
     modal, sizes = real_modal_form(model)
-    problem = _Problem(modal, sizes, u, y, np.arange(1, 80), 0)
+    problem = _Problem(modal, sizes, u, y, np.arange(1, 80), 0, max_radius=1.0)
     theta = problem.layout.pack(modal)
     J = problem.jacobian(theta)
     fd = np.empty_like(J)
