@@ -130,6 +130,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         quality = (f"mean Re {c['mean_real']:.6g}, log10(Re/Im) {c['log10_real_imag']:.2f}"
                    if c.get("mean_real") is not None else c["reason"])
         print(f"  {c['name']}: {quality}")
+    if result.refinement is not None:
+        r = result.refinement
+        print(f"refined in {r.iterations} steps ({r.seconds:.1f} s): simulation error "
+              f"{r.initial_percent:.3g} % -> {r.final_percent:.3g} % on the estimation data")
     return 0
 
 

@@ -51,6 +51,21 @@ def test_info_prints_the_channels(records, capsys):
     assert summary["outputs"] == ["x1", "x2", "x3", "x4", "x5"]
 
 
+def test_identify_refined_writes_the_refined_model(records, tmp_path, capsys):
+    element = json.dumps({"kind": "clearance", "dof": "x4", "ref": "x5",
+                          "gap_negative": 0.002, "gap_positive": 0.001})
+    code, out, err = run(capsys, "identify", records[0], *IDENTIFICATION, "--element", element,
+                         "--refine", "-o", tmp_path / "refined")
+    assert code == 0, err
+    said = re.search(r"refined in \d+ steps .*: simulation error ([0-9.]+) % -> ([0-9.]+) %",
+                     out)
+    assert said and float(said.group(2)) < float(said.group(1)), out
+    result = json.loads((tmp_path / "refined" / "result.json").read_text())
+    assert result["refinement"]["final_percent"] == pytest.approx(float(said.group(2)),
+                                                                  rel=1e-2)
+    assert (tmp_path / "refined" / "model.npz").exists()
+
+
 def test_study_create_diagnose_revise_show(records, tmp_path, capsys):
     folder = tmp_path / "study"
     code, out, err = run(capsys, "study", "create", *records, "-o", folder, *IDENTIFICATION,

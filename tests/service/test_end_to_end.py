@@ -25,8 +25,8 @@ IDENTIFICATION = {
 
 
 @pytest.fixture(scope="module")
-def identified(stack):
-    """Estimation and validation data simulated in one batch, then one identification."""
+def datasets(stack) -> tuple[str, str]:
+    """Estimation and validation data simulated in one batch."""
     with stack.client() as client:
         jobs = [{"kind": "simulation", "request": {**MODEL_SIMULATION, "periods": 4,
                                                    "excitation": {**MODEL_SIMULATION["excitation"],
@@ -37,12 +37,38 @@ def identified(stack):
         simulated = [wait_for_job(client, job_id) for job_id in batch.json()["job_ids"]]
         assert [j["state"] for j in simulated] == ["succeeded"] * 2, simulated
         estimation, validation = (j["result"]["dataset_id"] for j in simulated)
+        return estimation, validation
+
+
+def _identify(stack, datasets: tuple[str, str], **options) -> dict:
+    estimation, validation = datasets
+    with stack.client() as client:
         submitted = client.post("/v1/identifications", json={
-            **IDENTIFICATION, "dataset_id": estimation, "validation_dataset_id": validation})
+            **IDENTIFICATION, **options, "dataset_id": estimation,
+            "validation_dataset_id": validation})
         assert submitted.status_code == 202, submitted.text
         job = wait_for_job(client, submitted.json()["id"])
         assert job["state"] == "succeeded", job
         return job
+
+
+@pytest.fixture(scope="module")
+def identified(stack, datasets):
+    """One identification of the simulated data."""
+    return _identify(stack, datasets)
+
+
+def test_refined_identification_simulates_closer(stack, datasets, identified):
+    refined = _identify(stack, datasets, refine=True)["result"]
+    summary = refined["refinement"]
+    assert summary["final_percent"] < summary["initial_percent"]
+    assert summary["iterations"] >= 1 and "refinement" in refined["timings_s"]
+    errors = [r["errors"]["validation"]["overall_nrmse_percent"]
+              for r in (identified["result"], refined)]
+    assert errors[1] < errors[0]
+    # modes and coefficients are FNSI's, as without refinement
+    assert refined["coefficients"] == identified["result"]["coefficients"]
+    assert "refinement" not in identified["result"] or identified["result"]["refinement"] is None
 
 
 def test_identification_result_matches_the_simulated_truth(identified):
