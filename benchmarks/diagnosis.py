@@ -19,6 +19,8 @@ these identification settings. An NRMSE is null when its model could not be simu
 (unstable or diverging).
 
 Run: ``.venv/bin/python benchmarks/diagnosis.py [--periods 8 --samples-per-period 30000]``;
+``--refine`` refines every revision and validated candidate by its simulation error
+(:mod:`fnsi.refinement`), ``--outputs NC2w_Z,NC2b_Z,W_Z`` studies the single-3 channels;
 ``--noise-percent 0 --band-high 200 --order 36`` shows what the true stop reaches without
 noise when the model also sees the lines above the excitation.
 """
@@ -61,13 +63,18 @@ def main() -> int:
                              "to separate model error from noise)")
     parser.add_argument("--validated", type=int, default=3,
                         help="candidates identified and simulated on validation data")
+    parser.add_argument("--outputs", default=None,
+                        help="comma-separated outputs of the study (default: all 39)")
+    parser.add_argument("--refine", action="store_true",
+                        help="refine every revision and candidate by its simulation error")
     args = parser.parse_args()
 
     start = time.perf_counter()
     record = {"periods": args.periods, "samples_per_period": args.samples_per_period,
               "noise_percent": args.noise_percent}
-    estimation, truth = simulate_preset("single", seed=1, **record)
-    validation, _ = simulate_preset("single", seed=2, **record)
+    outputs = None if args.outputs is None else tuple(args.outputs.split(","))
+    estimation, truth = simulate_preset("single", seed=1, outputs=outputs, **record)
+    validation, _ = simulate_preset("single", seed=2, outputs=outputs, **record)
     simulation_s = time.perf_counter() - start
     print(f"simulated 2 x {args.periods} x {args.samples_per_period} samples, "
           f"{estimation.n_outputs} outputs in {simulation_s:.1f} s; exceedances "
@@ -76,7 +83,7 @@ def main() -> int:
     settings = IdentificationSettings(
         band=(5.0, args.band_high), block_rows=args.block_rows, order=args.order,
         max_order=max(args.order, 30), discard_periods=args.discard_periods,
-        line_set=args.line_set,
+        line_set=args.line_set, refine=args.refine,
         driving_points=((estimation.input_names[0], "NC2w_Z"),))
     start = time.perf_counter()
     study = Study.create(estimation, validation, settings, name="smallsat-single")

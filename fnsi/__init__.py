@@ -12,7 +12,7 @@ import hashlib
 import os
 from pathlib import Path
 
-_NUMBA_SOURCES = ("nonlinear.py", "newmark.py", "simulation.py")
+_NUMBA_SOURCES = ("nonlinear.py", "newmark.py", "simulation.py", "refinement.py")
 
 
 def _numba_cache_dir() -> str:
