@@ -373,10 +373,10 @@ class _Problem:
         Phi = self.weight[None, :, None] * np.concatenate([X, E[:, self.lines]], axis=2)
         rows = np.concatenate([Phi.real, Phi.imag], axis=1).reshape(-1, Phi.shape[2])
         target = self.Y[:, :, self.other]
-        t_rows = np.concatenate([target.real, target.imag], axis=1).reshape(-1, self.other.size)
+        t_rows = np.concatenate([target.real, target.imag], axis=1).reshape(
+            rows.shape[0], self.other.size)
         Q, Rm = np.linalg.qr(rows)
-        coef = np.linalg.lstsq(Rm, Q.T @ t_rows, rcond=None)[0] if self.other.size else \
-            np.zeros((rows.shape[1], 0))
+        coef = np.linalg.lstsq(Rm, Q.T @ t_rows, rcond=None)[0]
         state["Q"], state["R"], state["coef"] = Q, Rm, coef
         residual = np.empty(self.Y.shape, dtype=complex)
         Yl = X @ CL.T + E[:, self.lines] @ DL.T
