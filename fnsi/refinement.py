@@ -207,13 +207,10 @@ class _Layout:
         return int(self.sizes.sum())
 
     @property
-    def n_block(self) -> int:
-        return int(self.sizes.sum())   # a (and b) per block: one parameter per state
-
-    @property
     def slices(self) -> tuple[slice, slice, slice, slice]:
         n, q, L = self.n, self.n_inputs_ext, self.loop.size
-        ends = np.cumsum([self.n_block, n * q, L * n, L * q])
+        # a (and b) of every block: one parameter per state
+        ends = np.cumsum([n, n * q, L * n, L * q])
         return (slice(0, ends[0]), slice(ends[0], ends[1]), slice(ends[1], ends[2]),
                 slice(ends[2], ends[3]))
 
@@ -249,31 +246,32 @@ class _Layout:
 
 
 # -- closed-loop sensitivity --------------------------------------------------------------------
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, warmup):
     """Sensitivities dz (samples, E, p) of the elements' relative displacements.
 
     Per sample k of the periodic steady state and parameter p, with xi the state
     sensitivity driven by the bases' change w = G'(k) dz:
     dz = M_inv(k) (forcing(k) + PC xi),  xi <- A xi + Bg w,
-    M_inv(k) = (I - P D^e_g G'(k))^-1. The periodic recursion starts ``warmup`` samples
-    before the period so that its start-up transient has died out by then.
+    M_inv(k) = (I - P D^e_g G'(k))^-1, A = blockdiag([[a, b], [-b, a]] or [a]). The
+    periodic recursion starts ``warmup`` samples before the period so that its start-up
+    transient has died out by then. Parameters are independent: one thread each.
     """
     N, E, P = forcing.shape
     n = Bg.shape[0]
     s = Bg.shape[1]
-    xi = np.zeros((n, P))
     out = np.empty((N, E, P))
-    acc = np.empty(E)
-    w = np.empty(s)
-    new = np.empty(n)
-    for step in range(warmup + N):
-        k = (step - warmup) % N
-        for p in range(P):
+    for p in numba.prange(P):
+        xi = np.zeros(n)
+        acc = np.empty(E)
+        w = np.empty(s)
+        new = np.empty(n)
+        for step in range(warmup + N):
+            k = (step - warmup) % N
             for e in range(E):
                 total = forcing[k, e, p]
                 for i in range(n):
-                    total += PC[e, i] * xi[i, p]
+                    total += PC[e, i] * xi[i]
                 acc[e] = total
             for e in range(E):
                 total = 0.0
@@ -285,19 +283,17 @@ def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, war
             i = 0
             for blk in range(sizes.shape[0]):
                 if sizes[blk] == 2:
-                    x0 = xi[i, p]
-                    x1 = xi[i + 1, p]
-                    new[i] = a[blk] * x0 + b[blk] * x1
-                    new[i + 1] = -b[blk] * x0 + a[blk] * x1
+                    new[i] = a[blk] * xi[i] + b[blk] * xi[i + 1]
+                    new[i + 1] = -b[blk] * xi[i] + a[blk] * xi[i + 1]
                     i += 2
                 else:
-                    new[i] = a[blk] * xi[i, p]
+                    new[i] = a[blk] * xi[i]
                     i += 1
             for i in range(n):
                 total = new[i]
                 for j in range(s):
                     total += Bg[i, j] * w[j]
-                xi[i, p] = total
+                xi[i] = total
     return out
 
 
