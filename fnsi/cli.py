@@ -131,9 +131,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                    if c.get("mean_real") is not None else c["reason"])
         print(f"  {c['name']}: {quality}")
     if result.refinement is not None:
-        r = result.refinement
-        print(f"refined in {r.iterations} steps ({r.seconds:.1f} s): simulation error "
-              f"{r.initial_percent:.3g} % -> {r.final_percent:.3g} % on the estimation data")
+        print(result.refinement.summary)
     return 0
 
 

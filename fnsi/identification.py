@@ -133,9 +133,10 @@ class IdentificationSettings:
         noisy (SmallSat single, 39 outputs, true stop: validation NRMSE 4.9 % -> 0.37 %,
         noise floor 0.24 %), at the cost of seconds to a minute. The modes, coefficients
         and stiffness curves stay FNSI's: the output-error fit does not keep the structure
-        of Eq. 17 that the driving-point coefficient relies on. Models with a
-        velocity-dependent element (Coulomb friction, quadratic damping) are not refined
-        (``refinement`` stays None).
+        of Eq. 17 that the driving-point coefficient relies on. A model that cannot be
+        refined (a velocity-dependent element such as Coulomb friction or quadratic
+        damping, or a model that cannot be simulated) is returned as FNSI identified it,
+        with the reason in ``refinement.message``.
     """
 
     band: tuple[float, float]
@@ -514,14 +515,16 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
                        diagram, clock.timings)
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
-    if not settings.refine or any(e.needs_velocity for e in elements):
+    if not settings.refine:
         return result
-    refinement = refine(result.model, data, discard_periods=settings.discard_periods,
-                        band_high=settings.band[1],
-                        progress=None if progress is None else
-                        lambda f, m: progress(0.9 + 0.1 * f, m))
-    clock.done("refinement", 1.0, f"simulation error {refinement.initial_percent:.3g} % -> "
-               f"{refinement.final_percent:.3g} %")
+    try:
+        refinement = refine(result.model, data, discard_periods=settings.discard_periods,
+                            band_high=settings.band[1],
+                            progress=None if progress is None else
+                            lambda f, m: progress(0.9 + 0.1 * f, m))
+    except ValueError as error:    # FNSI's model stands; the result says why
+        refinement = Refinement.refused(result.model, str(error))
+    clock.done("refinement", 1.0, refinement.summary)
     return dataclasses.replace(result, model=refinement.model, refinement=refinement)
 
 

@@ -50,6 +50,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import least_squares
 
+from fnsi.errors import json_float
 from fnsi.measurement import Measurement
 from fnsi.simulation import SimulationDivergedError, element_incidence, simulate_periodic
 from fnsi.spectra import INTEGRATIONS, kept_record
@@ -82,7 +83,8 @@ class Refinement:
         poles reflected (:func:`reflect_unstable_poles`), when nothing improved.
     initial_percent, final_percent : float
         Simulation error of the estimation data before and after, on the residual lines:
-        sqrt(sum |residual|^2 / sum |Y^meas|^2) over all outputs [%].
+        sqrt(sum |residual|^2 / sum |Y^meas|^2) over all outputs [%]; NaN when the model
+        was not refined (see ``message``).
     iterations : int
         Accepted trust-region steps.
     evaluations : int
@@ -101,10 +103,24 @@ class Refinement:
     seconds: float
     message: str
 
+    @classmethod
+    def refused(cls, model: StateSpaceModel, reason: str) -> Refinement:
+        """The record of a model left as it was, and why."""
+        return cls(model, float("nan"), float("nan"), 0, 0, 0.0, f"not refined: {reason}")
+
+    @property
+    def summary(self) -> str:
+        """What refinement did, in one line."""
+        if not np.isfinite(self.final_percent):
+            return self.message
+        return (f"refined in {self.iterations} steps ({self.seconds:.1f} s): simulation error "
+                f"{self.initial_percent:.3g} % -> {self.final_percent:.3g} % on the "
+                "estimation data")
+
     def to_json(self) -> dict:
-        """JSON-ready summary (without the model)."""
-        return {"initial_percent": float(self.initial_percent),
-                "final_percent": float(self.final_percent), "iterations": self.iterations,
+        """JSON-ready summary (without the model); unknown errors are null."""
+        return {"initial_percent": json_float(self.initial_percent),
+                "final_percent": json_float(self.final_percent), "iterations": self.iterations,
                 "evaluations": self.evaluations, "seconds": float(self.seconds),
                 "message": self.message}
 
@@ -591,7 +607,8 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     velocity = [e.name for e in model.elements if e.needs_velocity]
     if velocity:
         raise ValueError(f"refinement supports displacement-dependent elements only; "
-                         f"{velocity} depend on the velocity: identify without refinement")
+                         f"{velocity} depend on the velocity, whose sensitivities it does "
+                         "not derive yet")
     if max_iterations < 1:
         raise ValueError(f"max_iterations must be at least 1; got {max_iterations}")
     u, y, data = _averaged_record(model, measurement, discard_periods)

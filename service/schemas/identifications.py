@@ -123,7 +123,7 @@ class IdentificationRequest(BaseModel):
         "get much closer to the measurement when the elements drive the structure outside "
         "the band or the bases are noisy; modes and coefficients stay FNSI's. Takes seconds "
         "to a minute. Models with velocity-dependent elements (friction, quadratic damping) are "
-        "not refined (result.refinement null).")
+        "not refined yet: result.refinement.message says why.")
     elements: list[NonlinearElementSpec] = Field(
         default_factory=list, max_length=100, description="Nonlinear elements whose "
         "coefficients are "

@@ -102,13 +102,14 @@ class RefinementSummary(_Document):
     """How the output-error refinement changed the model's simulation error on the
     estimation data (requests with refine: true)."""
 
-    initial_percent: float = Field(description="Simulation error of the FNSI model on the "
-                                   "residual lines [%].")
-    final_percent: float = Field(description="The same after refinement [%].")
+    initial_percent: float | None = Field(description="Simulation error of the FNSI model "
+                                          "on the residual lines [%]; null when not refined.")
+    final_percent: float | None = Field(description="The same after refinement [%].")
     iterations: int = Field(description="Accepted trust-region steps.")
     evaluations: int = Field(description="Steady-state simulations run.")
     seconds: float = Field(description="Wall time [s].")
-    message: str = Field(description="Why the minimisation stopped.")
+    message: str = Field(description="Why the minimisation stopped, or why the model was "
+                         "not refined.")
 
 
 class IdentificationJobResult(_Document):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -141,3 +143,12 @@ def test_refinement_refuses_velocity_dependent_elements(records):
                                     model.input_names, model.output_names, (friction,))
     with pytest.raises(ValueError, match="displacement-dependent elements only"):
         refine(with_friction, records[0], discard_periods=1, band_high=BAND[1])
+    # identify keeps FNSI's model and says why
+    settings = IdentificationSettings(band=BAND, order=6, elements=(friction,),
+                                      discard_periods=1, refine=True)
+    result = identify(records[0], settings)
+    assert result.refinement.message.startswith("not refined: refinement supports")
+    assert result.refinement.summary == result.refinement.message
+    assert result.to_json()["refinement"]["final_percent"] is None
+    np.testing.assert_array_equal(result.model.A, identify(
+        records[0], dataclasses.replace(settings, refine=False)).model.A)
