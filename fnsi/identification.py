@@ -134,9 +134,8 @@ class IdentificationSettings:
         noise floor 0.24 %), at the cost of seconds to a minute. The modes, coefficients
         and stiffness curves stay FNSI's: the output-error fit does not keep the structure
         of Eq. 17 that the driving-point coefficient relies on. A model that cannot be
-        refined (a velocity-dependent element such as Coulomb friction or quadratic
-        damping, or a model that cannot be simulated) is returned as FNSI identified it,
-        with the reason in ``refinement.message``.
+        refined (it cannot be simulated, or the problem is too large) is returned as FNSI
+        identified it, with the reason in ``refinement.message``.
     """
 
     band: tuple[float, float]

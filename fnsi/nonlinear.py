@@ -546,20 +546,23 @@ class NonlinearElement:
         x, v = self._samples(x, v)
         return _basis_matrix(self.kernel_kind, self.kernel_parameters, self.n_basis, x, v, 0)
 
-    def basis_slopes(self, x, v=None) -> np.ndarray:
-        """Derivatives dg_j/dx of the basis functions with respect to the relative
-        displacement, shape (samples, n_basis) (zero for velocity-dependent kinds).
+    def basis_slopes(self, x, v=None) -> tuple[np.ndarray, np.ndarray]:
+        """Derivatives of the basis functions with respect to the relative displacement
+        and to the relative velocity, each of shape (samples, n_basis).
 
         Parameters are those of :meth:`basis`.
 
         Examples
         --------
         >>> e = NonlinearElement("clearance", "a", gap=1.0, side="positive")
-        >>> e.basis_slopes(np.array([-3.0, 0.5, 3.0]))[:, 0].tolist()
-        [0.0, 0.0, 1.0]
+        >>> dx, dv = e.basis_slopes(np.array([-3.0, 0.5, 3.0]))
+        >>> dx[:, 0].tolist(), dv[:, 0].tolist()
+        ([0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
         """
         x, v = self._samples(x, v)
-        return _basis_matrix(self.kernel_kind, self.kernel_parameters, self.n_basis, x, v, 1)
+        kind, parameters = self.kernel_kind, self.kernel_parameters
+        return (_basis_matrix(kind, parameters, self.n_basis, x, v, 1),
+                _basis_matrix(kind, parameters, self.n_basis, x, v, 2))
 
     def force(self, x, v=None) -> np.ndarray:
         """Restoring force f = sum_j mu_j g_j(x, v) (Eq. 2), shape (samples,)."""

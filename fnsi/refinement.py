@@ -28,14 +28,10 @@ exact Jacobian.
 Jacobian. In periodic steady state the outputs are exactly Y = H(z) E with E = [U; G],
 H = C (zI - A)^-1 B^e + D^e, so every derivative is a resolvent product on the lines,
 except for the closed loop through the bases: a change of theta changes the relative
-displacements z_e(t), hence G. That loop is a linear time-varying recursion, run for all
-parameters at once in a compiled kernel (``_closed_loop``); its open-loop forcing comes
-from the frequency domain. The minimisation is SciPy's trust-region least squares.
-
-Scope: elements that depend on displacement only (polynomial, clearance, piecewise
-linear, spline). Coulomb friction and quadratic damping depend on the velocity, which the
-simulator takes by a central difference inside its implicit step; their sensitivities are
-not derived here and such models are refused with a message.
+displacements z_e(t) (and velocities, which the simulator takes by a central difference
+inside its implicit step), hence G. That loop is a linear time-varying recursion, run
+for all parameters at once in a compiled kernel (``_closed_loop``); its open-loop forcing
+comes from the frequency domain. The minimisation is SciPy's trust-region least squares.
 """
 
 from __future__ import annotations
@@ -263,23 +259,35 @@ class _Layout:
 
 # -- closed-loop sensitivity --------------------------------------------------------------------
 @numba.njit(cache=True, parallel=True)
-def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, warmup):
-    """Sensitivities dz (samples, E, p) of the elements' relative displacements.
+def _closed_loop(a, b, sizes, Bg, PC, PCA, PDg, M_inv, gain, forcing, half_fs, warmup):
+    """Changes w (samples, s, p) of the bases through the closed loop, per parameter.
 
-    Per sample k of the periodic steady state and parameter p, with xi the state
-    sensitivity driven by the bases' change w = G'(k) dz:
-    dz = M_inv(k) (forcing(k) + PC xi),  xi <- A xi + Bg w,
-    M_inv(k) = (I - P D^e_g G'(k))^-1, A = blockdiag([[a, b], [-b, a]] or [a]). The
-    periodic recursion starts ``warmup`` samples before the period so that its start-up
-    transient has died out by then. Parameters are independent: one thread each.
+    The E elements' relative motions Z = [dz] (displacement bases) or [dz; dv] (with
+    velocity bases, nz = 2E) at sample k of the periodic steady state are the open-loop
+    change ``forcing`` (N, nz, p) plus the response to the bases' changes w:
+
+        dz = f_z + PC xi[k] + PDg w[k]
+        dv = f_v + (PC A xi[k] - PC xi[k-1] - PDg w[k-1] + (PC Bg + PDg) w[k]) fs / 2
+        w[k] = G'(k) Z,   xi[k+1] = A xi[k] + Bg w[k]
+
+    (the central difference of the simulator, :mod:`fnsi.simulation`), so that
+    Z = M_inv(k) (known part), M_inv(k) = (I - M G'(k))^-1 with M the simulator's
+    sensitivity of z to the bases and ``gain`` = G' (N, s, nz). A = blockdiag([[a, b],
+    [-b, a]] or [a]), PC = P C_loop, PCA = PC A, PDg = P D^e_g. The recursion starts
+    ``warmup`` samples before the period so that its start-up transient has died out.
+    Parameters are independent: one thread each.
     """
-    N, E, P = forcing.shape
+    N, nz, P = forcing.shape
+    E = PC.shape[0]
     n = Bg.shape[0]
     s = Bg.shape[1]
-    out = np.empty((N, E, P))
+    out = np.empty((N, s, P))
     for p in numba.prange(P):
         xi = np.zeros(n)
-        acc = np.empty(E)
+        previous = np.zeros(n)
+        w_previous = np.zeros(s)
+        known = np.empty(nz)
+        Z = np.empty(nz)
         w = np.empty(s)
         new = np.empty(n)
         for step in range(warmup + N):
@@ -288,14 +296,25 @@ def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, war
                 total = forcing[k, e, p]
                 for i in range(n):
                     total += PC[e, i] * xi[i]
-                acc[e] = total
-            for e in range(E):
+                known[e] = total
+            for e in range(nz - E):
                 total = 0.0
-                for f in range(E):
-                    total += M_inv[k, e, f] * acc[f]
-                out[k, e, p] = total
+                for i in range(n):
+                    total += PCA[e, i] * xi[i] - PC[e, i] * previous[i]
+                for j in range(s):
+                    total -= PDg[e, j] * w_previous[j]
+                known[E + e] = forcing[k, E + e, p] + half_fs * total
+            for e in range(nz):
+                total = 0.0
+                for f in range(nz):
+                    total += M_inv[k, e, f] * known[f]
+                Z[e] = total
             for j in range(s):
-                w[j] = slopes[k, j] * out[k, basis_element[j], p]
+                total = 0.0
+                for e in range(nz):
+                    total += gain[k, j, e] * Z[e]
+                w[j] = total
+                out[k, j, p] = total
             i = 0
             for blk in range(sizes.shape[0]):
                 if sizes[blk] == 2:
@@ -306,10 +325,13 @@ def _closed_loop(a, b, sizes, Bg, PC, M_inv, slopes, basis_element, forcing, war
                     new[i] = a[blk] * xi[i]
                     i += 1
             for i in range(n):
+                previous[i] = xi[i]
                 total = new[i]
                 for j in range(s):
                     total += Bg[i, j] * w[j]
                 xi[i] = total
+            for j in range(s):
+                w_previous[j] = w[j]
     return out
 
 
@@ -339,6 +361,7 @@ class _Problem:
         self.basis_element = np.concatenate(
             [np.full(e.n_basis, k) for k, e in enumerate(start.elements)]).astype(np.int64) \
             if start.elements else np.zeros(0, dtype=np.int64)
+        self.velocity = any(e.needs_velocity for e in start.elements)
         self.simulations = 0
         self._warm: dict[int, np.ndarray] = {}
         self._cache: tuple[bytes, dict] | None = None
@@ -353,7 +376,7 @@ class _Problem:
             raise SimulationDivergedError(f"a pole too close to the unit circle (|z| = "
                                           f"{radius:.6f}): its transient would not settle")
         A, B, CL, DL = self.layout.matrices(theta)
-        state = {"theta": theta, "A": A, "B": B, "CL": CL, "DL": DL, "E": [], "slopes": []}
+        state = {"theta": theta, "A": A, "B": B, "CL": CL, "DL": DL, "E": [], "bases": []}
         loop_names = tuple(self.start.output_names[k] for k in self.layout.loop)
         if self.start.elements:
             loop_model = StateSpaceModel(A=A, B=B, C=CL, D=DL, fs=self.start.fs,
@@ -366,14 +389,9 @@ class _Problem:
                 response = simulate_periodic(loop_model, self.u[r],
                                              initial_state=self._warm.get(r))
                 self._warm[r] = response.final_state
-                yl = response.y
                 self.simulations += 1
-                zt = yl @ self.P.T                                        # (N, E)
-                g = np.concatenate([e.basis(zt[:, k]) for k, e in
-                                    enumerate(self.start.elements)], axis=1)
-                slopes = np.concatenate([e.basis_slopes(zt[:, k]) for k, e in
-                                         enumerate(self.start.elements)], axis=1)
-                state["slopes"].append(slopes)
+                g, gx, gv = self._bases(response.motion)
+                state["bases"].append((g, gx, gv))
                 e_t = np.concatenate([self.u[r], g], axis=1)
             else:
                 e_t = self.u[r]
@@ -398,6 +416,21 @@ class _Problem:
         state["residual"] = residual
         self._cache = (key, state)
         return state
+
+    def _bases(self, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bases g and their slopes dg/dx, dg/dv at the simulated relative motions.
+
+        ``motion`` (N, E) or (N, 2E) holds what the simulator's bases saw: relative
+        displacements, then relative velocities. Returns three (N, s) arrays.
+        """
+        E = len(self.start.elements)
+        parts = []
+        for k, element in enumerate(self.start.elements):
+            x = motion[:, k]
+            v = motion[:, E + k] if self.velocity else None
+            parts.append((element.basis(x, v), *element.basis_slopes(x, v)))
+        g, gx, gv = (np.concatenate(column, axis=1) for column in zip(*parts, strict=True))
+        return g, gx, gv
 
     def residual(self, theta: np.ndarray) -> np.ndarray:
         try:
@@ -463,6 +496,9 @@ class _Problem:
         radius = max(np.max(np.abs(np.linalg.eigvals(A))), 1e-300)
         # samples for the slowest pole to decay by 1e-8 (at most 20 periods)
         warmup = int(min(np.ceil(np.log(1e-8) / np.log(radius)), 20 * self.N))
+        half_fs = 0.5 * self.start.fs
+        # sensitivity of the relative motions to this step's bases, as in the simulator
+        M = PDg if not self.velocity else np.vstack((PDg, (PC @ Bg + PDg) * half_fs))
         out = []
         for r in range(self.u.shape[0]):
             forcing = np.empty((n_lines, self.P.shape[0], p), dtype=complex)
@@ -474,16 +510,42 @@ class _Problem:
                 dX = self._state_sensitivity(state, X, E, self.z[part])
                 forcing[part] = self._output_terms(dX, X, E, self.P, state["CL"])[0]
             forcing_t = np.fft.irfft(forcing, n=self.N, axis=0)            # (N, E, p)
-            slopes = state["slopes"][r]
-            gprime = np.zeros((self.N, Bg.shape[1], self.P.shape[0]))
-            gprime[:, np.arange(Bg.shape[1]), self.basis_element] = slopes
-            M_inv = np.linalg.inv(np.eye(self.P.shape[0]) - PDg @ gprime)   # (N, E, E)
-            dz = _closed_loop(a, b, sizes, np.ascontiguousarray(Bg), np.ascontiguousarray(PC),
-                              M_inv, np.ascontiguousarray(slopes), self.basis_element,
-                              np.ascontiguousarray(forcing_t), warmup)
-            dg = slopes[:, :, None] * dz[:, self.basis_element, :]          # (N, s, p)
+            g, gx, gv = state["bases"][r]
+            if self.velocity:
+                forcing_t = np.concatenate(
+                    [forcing_t, self._velocity_forcing(state, forcing_t, g)], axis=1)
+            dg = _closed_loop(a, b, sizes, np.ascontiguousarray(Bg), np.ascontiguousarray(PC),
+                              np.ascontiguousarray(PC @ A), np.ascontiguousarray(PDg),
+                              *self._loop_gain(gx, gv, M), np.ascontiguousarray(forcing_t),
+                              half_fs, warmup)                            # (N, s, p)
             out.append(np.fft.rfft(dg, axis=0)[self.lines])
         return np.stack(out)
+
+    def _loop_gain(self, gx: np.ndarray, gv: np.ndarray, M: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """(I - M G'(k))^-1 and G'(k) at every sample: G' (N, s, nz) maps the elements'
+        relative motions z = [x_e] or [x_e; v_e] to the bases' changes."""
+        E, s = self.P.shape[0], gx.shape[1]
+        gain = np.zeros((self.N, s, M.shape[0]))
+        gain[:, np.arange(s), self.basis_element] = gx
+        if self.velocity:
+            gain[:, np.arange(s), E + self.basis_element] = gv
+        return np.linalg.inv(np.eye(M.shape[0]) - M @ gain), gain
+
+    def _velocity_forcing(self, state: dict, forcing: np.ndarray, g: np.ndarray
+                          ) -> np.ndarray:
+        """Open-loop change of the relative velocities the simulator uses,
+        v[k] = P (y~[k+1] - y[k-1]) fs / 2 with y~[k+1] = y[k+1] - D^e_g (g[k+1] - g[k])
+        (:mod:`fnsi.simulation`), from that of the displacements ``forcing`` (N, E, p)."""
+        half_fs = 0.5 * self.start.fs
+        out = (np.roll(forcing, -1, axis=0) - np.roll(forcing, 1, axis=0)) * half_fs
+        m, q, n_basis = self.start.n_inputs, self.layout.n_inputs_ext, g.shape[1]
+        step = (np.roll(g, -1, axis=0) - g) * half_fs                      # (N, s)
+        start = self.layout.slices[3].start
+        for a in range(self.layout.loop.size):
+            columns = start + a * q + m + np.arange(n_basis)             # D^e_g[a, :]
+            out[:, :, columns] -= self.P[None, :, a, None] * step[:, None, :]
+        return out
 
     def _states_on(self, state: dict, E: np.ndarray, z: np.ndarray) -> np.ndarray:
         """X = (zI - A)^-1 B^e E on the lines z, (R, K, n)."""
@@ -600,15 +662,10 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     Raises
     ------
     ValueError
-        A velocity-dependent element, a starting model that cannot be simulated, or a
-        problem too large for memory; the message says what to change.
+        A starting model that cannot be simulated, or a problem too large for memory; the
+        message says what to change.
     """
     started = time.perf_counter()
-    velocity = [e.name for e in model.elements if e.needs_velocity]
-    if velocity:
-        raise ValueError(f"refinement supports displacement-dependent elements only; "
-                         f"{velocity} depend on the velocity, whose sensitivities it does "
-                         "not derive yet")
     if max_iterations < 1:
         raise ValueError(f"max_iterations must be at least 1; got {max_iterations}")
     u, y, data = _averaged_record(model, measurement, discard_periods)

@@ -65,7 +65,7 @@ def _element_bases(z, kinds, values, value_offsets, basis_offsets, g, gx, gv):
 
 @numba.njit(cache=True)
 def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_offsets,
-               basis_offsets, P, M, implicit, max_iterations, tolerance, limit, y_out):
+               basis_offsets, P, M, implicit, max_iterations, tolerance, limit, y_out, z_out):
     """Run the recursion over the rows of ``u[:-1]``; ``u[-1]`` is u after the record.
 
     Per step, the relative displacements (and velocities, when M has 2E rows)
@@ -73,8 +73,8 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
     evaluation when M = 0), with z_hat their value without the nonlinear terms of this
     step and M the sensitivity of z to the bases (module docstring). ``x``, ``y_prev``
     (the output before the first sample, for the central difference) and ``g`` are
-    updated in place so that a following call continues seamlessly. Returns (status,
-    sample index).
+    updated in place so that a following call continues seamlessly; ``z_out`` receives z
+    at every step. Returns (status, sample index).
     """
     n_samples = y_out.shape[0]
     n_outputs = C.shape[0]
@@ -117,6 +117,7 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
                     break
             if not converged:
                 return _NOT_CONVERGED, k
+            z_out[k] = z
             x_next += Bg @ g
             y += Dg @ g
         for i in range(n_outputs):
@@ -180,12 +181,16 @@ class PeriodicResponse:
     final_state : ndarray, shape (n,)
         State after the last period: the state at the start of a steady-state period,
         to start a simulation of a nearby model from (``initial_state``).
+    motion : ndarray, shape (period_length, E) or (period_length, 2E)
+        Relative displacement (then relative velocity, for velocity-dependent bases) of
+        every element at each step of the last period, as the bases saw them.
     """
 
     y: np.ndarray
     periods_run: int
     steady_state_change: float
     final_state: np.ndarray
+    motion: np.ndarray
 
 
 def _input_record(model: StateSpaceModel, u: np.ndarray) -> np.ndarray:
@@ -268,13 +273,18 @@ class _Simulator:
         self.g = np.zeros(n_basis)
 
     def run(self, u_extended: np.ndarray, start: int) -> np.ndarray:
-        """Outputs for ``u_extended[:-1]``; ``start`` is the first sample's global index."""
+        """Outputs for ``u_extended[:-1]``; ``start`` is the first sample's global index.
+
+        The elements' relative displacements (and velocities) at every step are left in
+        ``self.motion``, shape (samples, E) or (samples, 2E).
+        """
         y = np.full((u_extended.shape[0] - 1, self.model.n_outputs), np.nan)
+        self.motion = np.zeros((y.shape[0], self.M.shape[0]))
         try:
             status, k = _step_loop(
                 *self.matrices, u_extended, self.x, self.y_prev, self.g,
                 float(self.model.fs), *self.tables, self.P, self.M, self.implicit,
-                self.max_iterations, self.tolerance, self.limit, y,
+                self.max_iterations, self.tolerance, self.limit, y, self.motion,
             )
         except np.linalg.LinAlgError:   # singular Newton matrix, exactly at a fold:
             status, k = _NOT_CONVERGED, int(np.argmax(np.isnan(y[:, 0])))  # first unfilled
@@ -428,6 +438,7 @@ def simulate_periodic(
             return PeriodicResponse(
                 y=np.concatenate(outputs[-periods:]), periods_run=run + 1,
                 steady_state_change=change, final_state=simulator.x.copy(),
+                motion=simulator.motion,
             )
     raise SimulationDivergedError(
         f"no periodic steady state after {max_periods} periods (last period-to-period "
