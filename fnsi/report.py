@@ -12,6 +12,10 @@ One function builds what the service's identification jobs store and what
     Each when there is something to draw (no coefficients for a linear model, no FRF
     with fewer realisations than inputs). When the data were simulated, the truth
     (``Truth.to_json()``) is overlaid.
+``errors.png``
+    Where the model fails: measured spectrum, model error and noise floor per line for
+    the six outputs with the most error energy, on the validation data when given (else
+    the estimation data); absent when the model cannot be simulated.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from fnsi import plots
+from fnsi.errors import ModelErrors
 from fnsi.identification import IdentificationResult, IdentificationSettings
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
@@ -111,13 +116,21 @@ def identification_report(result: IdentificationResult, settings: Identification
     report = progress or (lambda fraction, message: None)
     document = result.to_json()
     report(0.0, "simulating the model on the estimation data")
-    document["errors"] = {"estimation": _errors(result, settings, estimation)}
+    compared = {"estimation": _errors(result, settings, estimation)}
     if validation is not None:
         report(0.3, "simulating the model on the validation data")
-        document["errors"]["validation"] = _errors(result, settings, validation)
+        compared["validation"] = _errors(result, settings, validation)
+    document["errors"] = {kind: errors.to_json() if isinstance(errors, ModelErrors) else errors
+                          for kind, errors in compared.items()}
     document = strict_json(document)
     report(0.6, "drawing figures")
     artefacts = _figures(result, settings, estimation, truth)
+    # where the model fails: on the validation data when given
+    kind, errors = list(compared.items())[-1]
+    if isinstance(errors, ModelErrors):
+        artefacts["errors.png"] = plots.plot_errors(
+            errors, outputs=_worst_outputs(errors), unit="output unit",
+            title=f"Model error on the {kind} data against the noise floor")
     artefacts["result.json"] = json.dumps(document).encode()
     buffer = io.BytesIO()
     result.model.to_npz(buffer)
@@ -127,12 +140,20 @@ def identification_report(result: IdentificationResult, settings: Identification
 
 
 def _errors(result: IdentificationResult, settings: IdentificationSettings,
-            measurement: Measurement) -> dict[str, Any]:
+            measurement: Measurement) -> ModelErrors | dict[str, str]:
+    """The model's errors on a measurement, or why it could not be simulated."""
     try:
         return compare(result.model, measurement, discard_periods=settings.discard_periods,
-                       band_high=settings.band[1]).errors.to_json()
+                       band_high=settings.band[1]).errors
     except ValueError as err:  # e.g. an unstable model cannot be simulated
         return {"failure": str(err)}
+
+
+def _worst_outputs(errors: ModelErrors, count: int = 6) -> list[str]:
+    """The ``count`` outputs with the most error energy (NRMSE squared times power)."""
+    energy = (errors.nrmse_percent ** 2) * np.sum(errors.measured_spectrum ** 2, axis=0)
+    order = np.argsort(-energy)[:count]
+    return [errors.output_names[k] for k in sorted(order)]
 
 
 def _true_element(truth: dict[str, Any] | None, element: NonlinearElement
