@@ -1,4 +1,5 @@
-"""Output-error refinement against known truth: a 3-DOF chain with a clearance."""
+"""Output-error refinement against known truth: 3-DOF chains with a clearance, a cubic
+spring, a spline and Coulomb friction, simulated by the project's Newmark integrator."""
 
 from __future__ import annotations
 
@@ -80,8 +81,8 @@ def _finite_difference_jacobian(problem: _Problem, theta: np.ndarray) -> np.ndar
 
 def test_jacobian_with_two_inputs_two_elements_and_two_realisations(chain, simulate_record):
     """Multi-input, multi-element (one with five spline bases), two realisations, every
-    output in the loop, residual in velocity units; the starting model's nonlinear feed-through is
-    zeroed so that it simulates explicitly."""
+    output in the loop, residual in velocity units; the starting model's nonlinear
+    feed-through is zeroed so that it simulates explicitly."""
     true = (NonlinearElement("clearance", "c", "b", gap=GAP, coefficients=(3e4,)),
             NonlinearElement("polynomial", "a", exponent=3.0, coefficients=(1e10,)))
     record = simulate_record(chain(3, true), ["a", "c"], noise=0.02, periods=4, seed=3,
