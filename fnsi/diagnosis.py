@@ -673,12 +673,19 @@ def rank_candidates(candidates: Sequence[Candidate]) -> list[Candidate]:
 
 def _coefficient_quality(evaluation: Evaluation, element: NonlinearElement
                          ) -> tuple[NonlinearElement, float | None, float | None]:
-    """The element with its identified coefficients and their quality criteria."""
+    """The element with its identified coefficients and their quality criteria.
+
+    The element is the model's: a refined revision (``IdentificationSettings.refine``)
+    carries refined clearance gaps.
+    """
     quality = evaluation.coefficient_quality(element)
     if quality is None:
         return element, None, None
     mean, log_ratio, flatness = quality
-    return replace(element, coefficients=tuple(mean)), log_ratio, flatness
+    identified = next((e for e in evaluation.model.elements
+                       if (e.kind, e.dof, e.ref) == (element.kind, element.dof, element.ref)),
+                      element)
+    return replace(identified, coefficients=tuple(mean)), log_ratio, flatness
 
 
 def _number(value: float) -> str:

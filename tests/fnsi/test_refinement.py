@@ -127,6 +127,23 @@ def test_refinement_brings_the_validation_error_to_the_noise_floor(records):
     assert refined.to_json()["refinement"]["iterations"] == refined.refinement.iterations
 
 
+def test_refinement_estimates_the_gap(records):
+    """Started 10 % off the true gap, refinement moves the clearance to it (the gap is a
+    parameter of the output-error fit) and returns the element with it."""
+    estimation, validation = records
+    wrong = NonlinearElement("clearance", "c", "b", gap=1.1 * GAP)
+    settings = IdentificationSettings(band=BAND, order=6, elements=(wrong,),
+                                      discard_periods=1)
+    fnsi = identify(estimation, settings)
+    refined = identify(estimation, dataclasses.replace(settings, refine=True))
+    (element,) = refined.model.elements
+    assert element.gap == pytest.approx(GAP, rel=0.02)
+    before, after = (compare(r.model, validation, discard_periods=1, band_high=BAND[1])
+                     .errors for r in (fnsi, refined))
+    assert after.overall_percent < 1.5 * after.overall_noise_floor_percent
+    assert before.overall_percent > 3 * after.overall_percent
+
+
 def test_linear_model_is_refined_in_the_frequency_domain(chain, simulate_record):
     structure = chain(3)
     record = simulate_record(structure, ["a"], noise=0.05, periods=4, seed=5)
