@@ -711,7 +711,7 @@ def _averaged_record(model: StateSpaceModel, measurement: Measurement,
 
 
 def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
-           band_high: float, max_iterations: int = 100, tolerance: float = 3e-3,
+           band_high: float, max_iterations: int = 60, tolerance: float = 1e-2,
            progress: Progress | None = None) -> Refinement:
     """Refine a model by minimising its simulation error on periodic data (module docstring).
 

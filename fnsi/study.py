@@ -172,6 +172,8 @@ class Revision:
         if the model could not be simulated).
     failure : str or None
         Why the model could not be simulated.
+    refinement : dict or None
+        :meth:`fnsi.refinement.Refinement.to_json` when the study refines its revisions.
     """
 
     number: int
@@ -188,6 +190,7 @@ class Revision:
     nrmse_percent: float
     noise_floor_percent: float
     failure: str | None = None
+    refinement: dict | None = None
 
     def to_json(self, *, spectra: bool = False) -> dict:
         """JSON-ready revision: model summary and validation errors (with the error per
@@ -217,6 +220,7 @@ class Revision:
             "noise_floor_percent": json_float(self.noise_floor_percent),
             "validation": errors,
             "failure": self.failure,
+            "refinement": self.refinement,
         }
 
 
@@ -382,6 +386,7 @@ class Study:
             errors=evaluation.errors, excited=evaluation.excited,
             simulated=evaluation.simulated, nrmse_percent=evaluation.nrmse_percent,
             noise_floor_percent=self.noise_floor_percent, failure=evaluation.failure,
+            refinement=None if result.refinement is None else result.refinement.to_json(),
         )
         self.revisions.append(revision)
         return revision
@@ -613,5 +618,5 @@ def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study)
         nrmse_percent=math.inf if item["nrmse_percent"] is None else item["nrmse_percent"],
         noise_floor_percent=(math.nan if item["noise_floor_percent"] is None
                              else item["noise_floor_percent"]),
-        failure=item["failure"],
+        failure=item["failure"], refinement=item.get("refinement"),
     )

@@ -205,6 +205,13 @@ class RevisionRecord(BaseModel):
         description="Validation errors: per channel NRMSE [%] and [dB], noise floor, "
         "excess over the floor; null if the model could not be simulated.")
     failure: str | None = Field(None, description="Why the model could not be simulated.")
+    model_elements: list[dict[str, Any]] | None = Field(
+        None, description="The identified model's elements: spline knots resolved, "
+        "clearance gaps refined when the study refines its revisions.")
+    refinement: dict[str, Any] | None = Field(
+        None, description="How refinement changed the simulation error (initial_percent, "
+        "final_percent, iterations, evaluations, seconds, message); null when the study "
+        "does not refine.")
 
 
 class Revision(RevisionRecord):

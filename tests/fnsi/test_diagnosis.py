@@ -231,7 +231,7 @@ def smallsat_case():
     return study, diagnose_and_add(study)
 
 
-def test_smallsat_single_clearance_ranks_first_and_fixes_the_model(smallsat_case):
+def test_smallsat_single_clearance_ranks_first_and_fixes_the_model(smallsat_case, tmp_path):
     study, diagnosis = smallsat_case
     top = diagnosis.candidates[0]
     assert (top.effect, top.location) == (Effect.CLEARANCE, Location("NC2w_Z", "NC2b_Z"))
@@ -242,6 +242,13 @@ def test_smallsat_single_clearance_ranks_first_and_fixes_the_model(smallsat_case
                      top.explanation)
     assert said and float(said.group(1)) == pytest.approx(1.5, rel=0.05)
     assert_fixed(study)
+    # the revision records its refinement and the refined gap, and keeps them when saved
+    last = study.revisions[-1]
+    assert last.refinement["final_percent"] < last.refinement["initial_percent"]
+    (refined,) = last.to_json()["model_elements"]
+    assert refined["gap"] == pytest.approx(1.5, rel=0.02)
+    reloaded = Study.load(study.save(tmp_path / "smallsat")).revisions[-1]
+    assert reloaded.refinement == last.refinement
 
 
 # -- result shape and building blocks -------------------------------------------------------
