@@ -682,9 +682,7 @@ def _coefficient_quality(evaluation: Evaluation, element: NonlinearElement
     if quality is None:
         return element, None, None
     mean, log_ratio, flatness = quality
-    identified = next((e for e in evaluation.model.elements
-                       if (e.kind, e.dof, e.ref) == (element.kind, element.dof, element.ref)),
-                      element)
+    identified = evaluation.identified(element)[1]   # present: it has coefficients
     return replace(identified, coefficients=tuple(mean)), log_ratio, flatness
 
 

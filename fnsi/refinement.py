@@ -51,7 +51,7 @@ from fnsi.errors import json_float
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement, NonlinearityKind
 from fnsi.simulation import SimulationDivergedError, element_incidence, simulate_periodic
-from fnsi.spectra import INTEGRATIONS, kept_record
+from fnsi.spectra import INTEGRATIONS, kept_record, period_mean
 from fnsi.statespace import StateSpaceModel
 
 Progress = Callable[[float, str], None]
@@ -66,7 +66,7 @@ SETTLE_PERIODS = 50
 #: than the tolerance (the descent crosses plateaus of a few steps: on the SmallSat single-3
 #: study a window of 3 stopped at 0.47 % validation error where 5 reach 0.35 %).
 STALL_WINDOW = 5
-#: Largest closed-loop sensitivity array (samples x elements x parameters) allowed.
+#: Most closed-loop sensitivity values (samples x parameters x motions and bases) allowed.
 MAX_SENSITIVITY_VALUES = 200_000_000
 
 
@@ -498,13 +498,10 @@ class _Problem:
         try:
             r = self.evaluate(theta)["residual"]
         except (SimulationDivergedError, np.linalg.LinAlgError):
-            # a trial step that destabilised the model: a large residual makes the trust
-            # region shrink back
-            return np.full(2 * self.Y.size, 10.0 * self.scale / np.sqrt(2 * self.Y.size))
+            # a trial step that destabilised the model: a residual of 10 times the
+            # measurement (1000 %) makes the trust region shrink back
+            return np.full(2 * self.Y.size, 10.0 / np.sqrt(2 * self.Y.size))
         return np.concatenate([r.real.ravel(), r.imag.ravel()]) / self.scale
-
-    def percent(self, theta: np.ndarray) -> float:
-        return float(100.0 * np.linalg.norm(self.residual(theta)))
 
     # -- Jacobian -------------------------------------------------------------------------------
     def _state_sensitivity(self, state: dict, X: np.ndarray, E: np.ndarray,
@@ -705,9 +702,9 @@ def _averaged_record(model: StateSpaceModel, measurement: Measurement,
     if kept < 1:
         raise ValueError(f"discard_periods={discard_periods} leaves no period of the "
                          f"{data.periods} measured; discard fewer")
-    y = kept_record(data.y, data.periods, discard_periods)
-    y = y.reshape(y.shape[0], kept, data.period_length, y.shape[2]).mean(axis=1)
-    return np.ascontiguousarray(data.u[:, -data.period_length:]), y, data
+    y = period_mean(kept_record(data.y, data.periods, discard_periods), kept)
+    return (np.ascontiguousarray(data.u[:, -data.period_length:]),
+            y[:, :data.period_length], data)
 
 
 def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
@@ -758,7 +755,11 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     modal, sizes = real_modal_form(model)
     modal = reflect_unstable_poles(modal, sizes, max_radius)
     problem = _Problem(modal, sizes, u, y, lines, INTEGRATIONS[data.quantity], max_radius)
-    values = N * max(problem.P.shape[0], 1) * problem.layout.size * (2 if model.elements else 0)
+    # closed-loop sensitivities of one realisation: open-loop forcing (complex on half the
+    # lines, then real with the velocities), the bases' changes and their spectra
+    elements, n_basis = problem.P.shape[0], problem.basis_element.size
+    motions = elements * (2 if problem.velocity else 1)
+    values = N * problem.layout.size * (elements + motions + 2 * n_basis)
     if values > MAX_SENSITIVITY_VALUES:
         raise ValueError(f"refining this model needs about {8 * values / 2**30:.1f} GiB of "
                          "sensitivities; use fewer outputs, elements or a lower order")

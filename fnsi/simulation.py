@@ -271,6 +271,7 @@ class _Simulator:
         self.x = np.zeros(model.order)
         self.y_prev = np.zeros(model.n_outputs)
         self.g = np.zeros(n_basis)
+        self.motion = np.zeros((0, self.M.shape[0]))   # relative motions of the last run
 
     def run(self, u_extended: np.ndarray, start: int) -> np.ndarray:
         """Outputs for ``u_extended[:-1]``; ``start`` is the first sample's global index.

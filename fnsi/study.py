@@ -109,18 +109,23 @@ class Evaluation:
         """Identified state-space model."""
         return self.identification.model
 
+    def identified(self, element: NonlinearElement) -> tuple[int, NonlinearElement] | None:
+        """Index and form of the model's element of the same kind and location (the last
+        one): spline knots resolved, clearance gaps refined when the study refines."""
+        matches = [(k, e) for k, e in enumerate(self.model.elements)
+                   if (e.kind, e.dof, e.ref) == (element.kind, element.dof, element.ref)]
+        return matches[-1] if matches else None
+
     def coefficient_quality(self, element: NonlinearElement
                             ) -> tuple[np.ndarray, float, float] | None:
         """Estimated real coefficients, log10(Re/Im) and flatness [%] of one element.
 
         Returns None when the identification reports no coefficient for it.
         """
-        elements = self.model.elements
-        indices = [k for k, e in enumerate(elements) if e.kind == element.kind
-                   and e.dof == element.dof and e.ref == element.ref]
-        if not indices:
+        found = self.identified(element)
+        if found is None:
             return None
-        own = [c for c in self.identification.coefficients if c.element == indices[-1]]
+        own = [c for c in self.identification.coefficients if c.element == found[0]]
         if not own or not all(c.identifiable for c in own):
             return None
         return (np.array([c.mean_real for c in own]),
