@@ -130,6 +130,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         quality = (f"mean Re {c['mean_real']:.6g}, log10(Re/Im) {c['log10_real_imag']:.2f}"
                    if c.get("mean_real") is not None else c["reason"])
         print(f"  {c['name']}: {quality}")
+    for separation in result.separability:
+        if separation.concern:
+            print(f"  warning: {separation.concern}")
     if result.refinement is not None:
         print(result.refinement.summary)
     return 0

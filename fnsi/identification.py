@@ -8,7 +8,9 @@ Pipeline (paper Sections II and IV), each stage timed:
    time domain on the relative displacement (and velocity) of its two output channels
    (period-averaged by default, see ``average_bases``), automatic spline knots placed
    from the measured range, then transformed exactly like the outputs; the extended
-   input is E = [U; G] (Eq. 8). Stages 1-2 are timed together as ``spectra_and_bases``.
+   input is E = [U; G] (Eq. 8), and the separability of each element's bases from the
+   rest of E (:mod:`fnsi.separability`). Stages 1-2 are timed together as
+   ``spectra_and_bases``.
 3. ``decomposition``: elimination of E_i and SVD (Eq. 9-14), :mod:`fnsi.subspace`.
 4. ``stabilisation``: diagram over orders 2, 4, ..., max_order and automatic order
    (:mod:`fnsi.stabilisation`), used when ``order="auto"``.
@@ -41,6 +43,7 @@ from fnsi.measurement import Layout, Measurement
 from fnsi.modal import Coefficient, ModalTable, modal_table, nonlinear_coefficients
 from fnsi.nonlinear import NonlinearElement
 from fnsi.refinement import Refinement, refine
+from fnsi.separability import Separability, separability
 from fnsi.spectra import (
     LINE_SETS,
     Spectra,
@@ -259,6 +262,12 @@ class IdentificationResult:
         Leading singular values of the projected data (order selection).
     settings : IdentificationSettings
         The settings, with spline elements carrying their resolved knots.
+    refinement : Refinement or None
+        Output-error refinement, when requested.
+    separability : tuple of Separability
+        How well the data tell each element's force apart from the other extended
+        inputs (:mod:`fnsi.separability`); a confounded element's curve is not to be
+        trusted.
     """
 
     model: StateSpaceModel
@@ -271,6 +280,7 @@ class IdentificationResult:
     singular_values: np.ndarray = field(default_factory=lambda: np.zeros(0))
     settings: IdentificationSettings | None = None
     refinement: Refinement | None = None
+    separability: tuple[Separability, ...] = ()
 
     def to_json(self) -> dict:
         """JSON-ready result (complex shapes as [re, im] pairs)."""
@@ -293,6 +303,7 @@ class IdentificationResult:
             "model": self.model.to_json(),
             "settings": None if self.settings is None else self.settings.to_json(),
             "refinement": None if self.refinement is None else self.refinement.to_json(),
+            "separability": [s.to_json() for s in self.separability],
         }
 
 
@@ -496,6 +507,7 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     data = measurement.select(settings.inputs, settings.outputs)
     clock.done("validation", 0.02, f"settings checked, {settings.block_rows} block rows")
     spectra, elements, ranges = extended_spectra(data, settings)
+    separation = separability(spectra, data.n_inputs, elements)
     clock.done("spectra_and_bases", 0.2, f"{spectra.n_lines} lines, "
                f"{spectra.inputs.shape[2]} extended inputs")
     max_order = _max_order(settings, data.n_outputs)
@@ -510,8 +522,9 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     clock.done("stabilisation", 0.7, f"order {order}")
     model = decomposition.model(order)
     clock.done("model", 0.85, "B and D estimated")
-    result = _physical(model, spectra, decomposition, settings, elements, ranges, order,
-                       diagram, clock.timings)
+    result = dataclasses.replace(
+        _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
+                  clock.timings), separability=separation)
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
     if not settings.refine:

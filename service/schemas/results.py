@@ -112,6 +112,24 @@ class RefinementSummary(_Document):
                          "not refined.")
 
 
+class ElementSeparability(_Document):
+    """Whether the data tell one element's force apart from the other extended inputs
+    (fnsi.separability)."""
+
+    element: int = Field(description="Index of the element in settings.elements.")
+    name: str = Field(description="The element.")
+    unexplained: float = Field(description="Smallest fraction of a combination of its "
+                               "basis functions that the other extended inputs cannot "
+                               "reproduce on the analysis lines [-]: 1 separable, 0 not.",
+                               examples=[0.65])
+    partners: list[str] = Field(description="Elements (or 'input forces') that reproduce "
+                                "that combination, largest share first.")
+    confounded: bool = Field(description="unexplained < 0.1: the curve can be off by more "
+                             "than ten times the model's relative error.")
+    concern: str | None = Field(description="What a confounded element means and what to "
+                                "change; null when separable.")
+
+
 class IdentificationJobResult(_Document):
     """Result of an identification job: result.json without the model matrices,
     stabilisation diagram and singular values (download result.json or model.npz)."""
@@ -129,6 +147,9 @@ class IdentificationJobResult(_Document):
     errors: IdentificationErrors = Field(description="Simulation errors of the model.")
     refinement: RefinementSummary | None = Field(
         None, description="Output-error refinement; null when not requested.")
+    separability: list[ElementSeparability] | None = Field(
+        None, description="One per nonlinear element: can the data separate its force "
+        "from the others'?")
 
 
 class RevisionSummary(_Document, RevisionRecord):

@@ -251,3 +251,22 @@ def test_basis_noise_bias_is_compensated(chain, simulate_record):
     # not the basis noise of the least squares (averaged bases give about the same)
     assert errors[False] < -0.2
     assert abs(errors[True]) < 0.5 * abs(errors[False])
+
+
+def test_identification_reports_a_spline_that_repeats_a_cubic(cubic):
+    """A cubic and a spline at the same connection: the spline's central interval is a
+    cubic, so the two share a force the data cannot split (a user adding a flexible law
+    beside a known one); the cubic alone is separable."""
+    _, element, data = cubic
+    settings = IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6, max_order=8,
+                                      elements=(unknown(element),))
+    alone = identify(data, settings)
+    assert len(alone.separability) == 1 and not alone.separability[0].confounded
+    both = identify(data, IdentificationSettings(
+        band=BAND, block_rows=BLOCK_ROWS, order=6, max_order=8,
+        elements=(settings.elements[0], NonlinearElement("spline", "a", intervals=5))))
+    cubic_part, spline_part = both.separability
+    assert cubic_part.confounded and cubic_part.partners[0] == spline_part.name
+    assert spline_part.confounded and cubic_part.name in spline_part.partners
+    document = json.loads(json.dumps(both.to_json()))
+    assert document["separability"][0]["confounded"] is True
