@@ -278,6 +278,7 @@ def plot_stiffness(
     truths: Sequence[NonlinearElement | None] | None = None,
     title: str = "Nonlinear restoring forces",
     units: tuple[str, str] = ("m", "N"),
+    warnings: Sequence[str | None] | None = None,
 ) -> bytes:
     """Identified restoring-force curves, with the exact ones when known (Figures 10, 12).
 
@@ -291,6 +292,9 @@ def plot_stiffness(
         Figure title (wrapped to the figure width).
     units : (str, str)
         Length and force units of the data, for the axis labels (velocity: length/s).
+    warnings : sequence of str or None, optional
+        A short warning per curve (None for none), written in red in its panel, whose
+        identified curve is then dashed: a curve not to be trusted (e.g. confounded).
 
     Returns
     -------
@@ -299,9 +303,10 @@ def plot_stiffness(
     """
     if not curves:
         raise ValueError("no stiffness curve to plot: pass at least one")
-    if truths is not None and len(truths) != len(curves):
-        raise ValueError(f"give one truth (or None) per curve: {len(truths)} for "
-                         f"{len(curves)} curves")
+    for name, given in (("truth", truths), ("warning", warnings)):
+        if given is not None and len(given) != len(curves):
+            raise ValueError(f"give one {name} (or None) per curve: {len(given)} for "
+                             f"{len(curves)} curves")
     rows, columns = panel_grid(len(curves))
     figure = new_figure(5.0 * columns, 3.8 * rows)
     axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
@@ -313,7 +318,12 @@ def plot_stiffness(
             exact = (truth.force(zeros, curve.x) if truth.needs_velocity
                      else truth.force(curve.x, zeros))
             ax.plot(curve.x, exact, color="k", lw=1.6, label="exact")
-        ax.plot(curve.x, curve.force, color="tab:blue", lw=1.2, label="identified")
+        warning = warnings[k] if warnings is not None else None
+        ax.plot(curve.x, curve.force, color="tab:blue", lw=1.2, label="identified",
+                ls="--" if warning else "-")
+        if warning:
+            ax.text(0.02, 0.02, warning, transform=ax.transAxes, color="tab:red",
+                    fontsize="small", va="bottom", wrap=True)
         element = curve.element
         if element.kind is NonlinearityKind.SPLINE and element.knots:
             knots = np.asarray(element.knots)

@@ -190,9 +190,19 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
                    for t, c in zip(trues, known, strict=True)])
     if result.stiffness:
         out["stiffness.png"] = plots.plot_stiffness(
-            result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness])
+            result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness],
+            warnings=[_confounding(result, c.element) for c in result.stiffness])
     out["macx.png"] = _macx_figure(result, truth)
     return out
+
+
+def _confounding(result: IdentificationResult, element: NonlinearElement) -> str | None:
+    """Short warning for the stiffness panel of a confounded element, else None."""
+    for separation in result.separability:
+        if separation.name == element.name and separation.confounded:
+            return (f"confounded with {', '.join(separation.partners)} "
+                    f"(u = {separation.unexplained:.3f}): not to be trusted")
+    return None
 
 
 def _macx_figure(result: IdentificationResult, truth: dict[str, Any] | None) -> bytes:

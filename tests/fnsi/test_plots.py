@@ -78,6 +78,9 @@ def test_stiffness_plot_with_truth_and_spline_knots():
     damper = NonlinearElement("quadratic_damping", "a", coefficients=(3.0,))
     curves = [stiffness_curve(spline, ordinates), stiffness_curve(damper, x=(-1.0, 1.0))]
     _assert_png(plots.plot_stiffness(curves, truths=[truth, None]))
+    _assert_png(plots.plot_stiffness(curves, warnings=["confounded (u = 0.01)", None]))
+    with pytest.raises(ValueError, match="one warning"):
+        plots.plot_stiffness(curves, warnings=["confounded"])
 
 
 def test_macx_plot():
