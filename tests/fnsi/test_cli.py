@@ -66,6 +66,21 @@ def test_identify_refined_writes_the_refined_model(records, tmp_path, capsys):
     assert (tmp_path / "refined" / "model.npz").exists()
 
 
+def test_identify_warns_of_elements_the_data_cannot_separate(records, tmp_path, capsys):
+    """The known clearance and a spline at the same connection share their force."""
+    stop = json.dumps({"kind": "clearance", "dof": "x4", "ref": "x5",
+                       "gap_negative": 0.002, "gap_positive": 0.001})
+    spline = json.dumps({"kind": "spline", "dof": "x4", "ref": "x5", "intervals": 9})
+    code, out, err = run(capsys, "identify", records[0], *IDENTIFICATION, "--element", stop,
+                         "--element", spline, "-o", tmp_path / "both")
+    assert code == 0, err
+    warnings = [line for line in out.splitlines() if line.strip().startswith("warning:")]
+    assert len(warnings) == 2 and "spline x4-x5" in warnings[0], out
+    result = json.loads((tmp_path / "both" / "result.json").read_text())
+    assert [s["confounded"] for s in result["separability"]] == [True, True]
+    assert (tmp_path / "both" / "stiffness.png").read_bytes().startswith(PNG)
+
+
 def test_study_create_diagnose_revise_show(records, tmp_path, capsys):
     folder = tmp_path / "study"
     code, out, err = run(capsys, "study", "create", *records, "-o", folder, *IDENTIFICATION,

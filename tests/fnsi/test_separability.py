@@ -9,18 +9,22 @@ import pytest
 import scipy.linalg
 
 from fnsi.nonlinear import NonlinearElement
-from fnsi.separability import SEPARABILITY_LIMIT, separability
+from fnsi.separability import LINEAR_STRUCTURE, SEPARABILITY_LIMIT, separability
 from fnsi.spectra import Spectra
 
 LINES = 400
 
 
-def spectra_of(columns: list[np.ndarray]) -> Spectra:
-    """Spectra whose extended inputs are ``columns`` (one realisation, LINES lines)."""
+def spectra_of(columns: list[np.ndarray], outputs: dict[str, np.ndarray] | None = None,
+               ) -> Spectra:
+    """Spectra whose extended inputs are ``columns`` (one realisation, LINES lines) and
+    whose displacement outputs are ``outputs`` (default: one zero channel "y", so that
+    no element's DOFs are measured and only the extended inputs count)."""
+    outputs = outputs or {"y": np.zeros(LINES, complex)}
     inputs = np.stack(columns, axis=1)[None]
     names = tuple(f"e{k}" for k in range(inputs.shape[2]))
     return Spectra(np.linspace(1.0, 40.0, LINES), 200.0, inputs,
-                   np.zeros((1, LINES, 1), complex), names, ("y",))
+                   np.stack(list(outputs.values()), axis=1)[None], names, tuple(outputs))
 
 
 def random_line_spectrum(rng: np.random.Generator) -> np.ndarray:
@@ -83,3 +87,16 @@ def test_column_count_must_match_the_elements():
     rng = np.random.default_rng(4)
     with pytest.raises(ValueError, match="2 extended inputs"):
         separability(spectra_of([random_line_spectrum(rng)] * 2), 1, (CUBIC_A, CUBIC_C))
+
+
+def test_a_law_that_a_linear_spring_reproduces_is_confounded_with_the_linear_structure():
+    """g = x (a polynomial of exponent 1) is what the underlying linear model already
+    holds; a cubic of the same motion is not."""
+    rng = np.random.default_rng(5)
+    u, x = random_line_spectrum(rng), random_line_spectrum(rng)
+    spring = NonlinearElement("polynomial", "a", exponent=1.0)
+    outputs = {"a": x, "b": random_line_spectrum(rng)}
+    linear, = separability(spectra_of([u, 3.0 * x], outputs), 1, (spring,))
+    assert linear.unexplained < 1e-6 and linear.partners == (LINEAR_STRUCTURE,)
+    cubic, = separability(spectra_of([u, random_line_spectrum(rng)], outputs), 1, (CUBIC_A,))
+    assert not cubic.confounded
