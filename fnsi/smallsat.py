@@ -538,6 +538,7 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
                     outputs: tuple[str, ...] | None = None,
                     quantity: str = "displacement", fs: float = 2500.0,
                     fs_int: float = 20000.0,
+                    parameters: SmallSatParameters | None = None,
                     progress: Callable[[float, str], None] | None = None,
                     ) -> tuple[Measurement, Truth]:
     """Simulate one of the paper's SmallSat tests (Section IV.A or IV.C).
@@ -570,6 +571,8 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
         What the outputs measure.
     fs, fs_int : float
         Measurement and integration sampling rates [Hz].
+    parameters : SmallSatParameters, optional
+        A variant of the structure (sensitivity studies); default the tuned parameters.
     progress : callable(fraction, message), optional
         Progress callback of the simulation; may raise to cancel.
 
@@ -600,7 +603,7 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
     excitation = Excitation.along(signal, fs, preset.directions)
     simulated = outputs if BRACKET_TIP in outputs else (*outputs, BRACKET_TIP)
     measurement, truth = acquire(
-        smallsat_model(), excitation, fs=fs, fs_int=fs_int, periods=periods,
+        smallsat_model(parameters), excitation, fs=fs, fs_int=fs_int, periods=periods,
         outputs=simulated, quantity=quantity, noise_percent=noise_percent,
         noise_reference=BRACKET_TIP, seed=int(noise_seed), progress=progress)
     if simulated == outputs:
