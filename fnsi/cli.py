@@ -259,6 +259,9 @@ def _cmd_study_revise(args: argparse.Namespace) -> int:
     print(file=sys.stderr)
     _save_study(study, Path(args.study), study_figures(study, revision.number))
     print(study.history_table())
+    for separation in revision.separability:
+        if separation["concern"]:
+            print(f"warning: {separation['concern']}")
     return 0
 
 

@@ -179,6 +179,9 @@ class Revision:
         Why the model could not be simulated.
     refinement : dict or None
         :meth:`fnsi.refinement.Refinement.to_json` when the study refines its revisions.
+    separability : tuple of dict
+        :meth:`fnsi.separability.Separability.to_json` of every element: whether the
+        data tell its force apart from the others' (empty for revisions saved before).
     """
 
     number: int
@@ -196,6 +199,7 @@ class Revision:
     noise_floor_percent: float
     failure: str | None = None
     refinement: dict | None = None
+    separability: tuple[dict, ...] = ()
 
     def to_json(self, *, spectra: bool = False) -> dict:
         """JSON-ready revision: model summary and validation errors (with the error per
@@ -226,6 +230,7 @@ class Revision:
             "validation": errors,
             "failure": self.failure,
             "refinement": self.refinement,
+            "separability": list(self.separability),
         }
 
 
@@ -392,6 +397,7 @@ class Study:
             simulated=evaluation.simulated, nrmse_percent=evaluation.nrmse_percent,
             noise_floor_percent=self.noise_floor_percent, failure=evaluation.failure,
             refinement=None if result.refinement is None else result.refinement.to_json(),
+            separability=tuple(s.to_json() for s in result.separability),
         )
         self.revisions.append(revision)
         return revision
@@ -624,4 +630,5 @@ def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study)
         noise_floor_percent=(math.nan if item["noise_floor_percent"] is None
                              else item["noise_floor_percent"]),
         failure=item["failure"], refinement=item.get("refinement"),
+        separability=tuple(item.get("separability", ())),
     )

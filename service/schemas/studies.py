@@ -212,6 +212,10 @@ class RevisionRecord(BaseModel):
         None, description="How refinement changed the simulation error (initial_percent, "
         "final_percent, iterations, evaluations, seconds, message); null when the study "
         "does not refine.")
+    separability: list[dict[str, Any]] | None = Field(
+        None, description="Per element: whether the data tell its force apart from the "
+        "others' (unexplained, partners, confounded, concern; see the identification "
+        "result's separability).")
 
 
 class Revision(RevisionRecord):

@@ -123,6 +123,16 @@ def test_save_and_load_round_trip_without_pickle(study, tmp_path):
     assert loaded.connections == (("x2", "x4"),)
 
 
+def test_revisions_record_the_separability_of_their_elements(study, data):
+    assert study.revisions[0].separability == ()
+    (cubic,) = study.revisions[1].to_json()["separability"]
+    assert cubic["name"] == "polynomial x3" and not cubic["confounded"]
+    # a spline beside the cubic at the same connection shares its force
+    both = Study.create(*data, SETTINGS, name="both")
+    both.add_revision(add=[CUBIC, NonlinearElement("spline", "x3", intervals=9)])
+    assert [s["confounded"] for s in both.revisions[1].separability] == [True, True]
+
+
 def test_loaded_study_can_be_diagnosed_and_extended(study, tmp_path):
     loaded = Study.load(study.save(tmp_path / "again"))
     diagnosis = loaded.diagnose(settings=DiagnosisSettings(validated_candidates=1,
