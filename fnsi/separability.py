@@ -55,7 +55,8 @@ LINEAR_STRUCTURE = "a linear spring and dashpot at the elements"
 
 @dataclass(frozen=True)
 class Separability:
-    """How well the data separate one element's force from the other extended inputs.
+    """How well the data separate one element's force from the other extended inputs
+    and from a linear spring and dashpot at the elements.
 
     Attributes
     ----------
@@ -65,11 +66,11 @@ class Separability:
         The element's name.
     unexplained : float
         u in [0, 1]: the smallest fraction of a combination of the element's basis
-        spectra that the other extended inputs cannot reproduce (sine of the smallest
-        principal angle).
+        spectra that the others cannot reproduce (sine of the smallest principal angle).
     partners : tuple of str
-        The elements (or ``"input forces"``) that reproduce that combination, largest
-        share first; empty when u is 1.
+        What reproduces that combination, largest share first: element names,
+        ``"input forces"``, :data:`LINEAR_STRUCTURE`, or ``"its other basis functions"``
+        when the element's own bases repeat each other; empty when u is 1.
     """
 
     element: int
