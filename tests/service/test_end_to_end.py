@@ -152,6 +152,9 @@ def test_smallsat_preset_simulates_and_identifies_the_clearance(stack):
         # Table 2: added stiffness 100 beyond the gap. Two kept periods of 2500 samples
         # (46 lines) give a few % (3.6 % with seed 1); the paper's 8 x 30,000 gives < 1 %.
         np.testing.assert_allclose(coefficient["mean_real"], 100.0, rtol=0.1)
+        (separation,) = job["result"]["separability"]
+        assert separation["name"] == "clearance NC2w_Z-NC2b_Z"
+        assert not separation["confounded"] and separation["concern"] is None
         names = {a["name"] for a in client.get(f"/v1/jobs/{job['id']}/artefacts").json()}
         assert {"stabilisation.png", "frf.png", "coefficients.png", "stiffness.png",
                 "macx.png", "result.json", "model.npz"} <= names
