@@ -266,8 +266,8 @@ class IdentificationResult:
         Output-error refinement, when requested.
     separability : tuple of Separability
         How well the data tell each element's force apart from the other extended
-        inputs (:mod:`fnsi.separability`); a confounded element's curve is not to be
-        trusted.
+        inputs and from a linear spring at the elements (:mod:`fnsi.separability`); a
+        confounded element's curve is not to be trusted.
     """
 
     model: StateSpaceModel
