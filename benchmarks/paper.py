@@ -787,15 +787,12 @@ def with_diagonal(measurement: Measurement, truth: Truth) -> tuple[Measurement, 
 def multi_workload(measurement: Measurement, truth: Truth) -> tuple[Run, list[str], dict]:
     """multi-18: eight splines with automatic knots, 9 intervals each (IV.C)."""
     data, truth = with_diagonal(measurement, truth)
-    elements = [NonlinearElement("spline", e.dof, e.ref, intervals=9) for e in truth.elements]
-    driving_point = (data.input_names[0], W_DIAGONAL)
     try:  # the paper's i = 50, for the record
-        Run("multi-18", data, truth, settings_for(multi_outputs(), 50, elements, driving_point))
+        stop_run(data, truth, "", "spline", block_rows=50)
         paper_rows = "The paper's i = 50 was accepted."
     except ValueError as refusal:
         paper_rows = f"The paper's i = 50 is refused by `identify()`: {refusal}."
-    run = Run("multi-18", data, truth,
-              settings_for(multi_outputs(), "auto", elements, driving_point))
+    run = stop_run(data, truth, "", "spline")
     curves, errors, rows = [], [], []
     for k, element in enumerate(truth.elements):
         curve = curve_of(run, k)
@@ -856,18 +853,21 @@ def mirror_correlations(data: Measurement, elements) -> list[float]:
             for e in elements]
 
 
-def stop_runs(data: Measurement, truth: Truth, name: str, *, weighting: bool = True,
-              ) -> tuple[Run, Run]:
-    """The eight stops identified as splines (automatic knots, 9 intervals) and as
-    clearances with their true gaps, automatic block rows and order (noise weighting off
-    for a noise-free record, which has no noise to weight by)."""
-    driving_point = (data.input_names[0], W_DIAGONAL)
-    splines = [NonlinearElement("spline", e.dof, e.ref, intervals=9) for e in truth.elements]
-    known = [replace(e, coefficients=None) for e in truth.elements]
-    return tuple(Run(f"multi-18 {name}", data, truth,
-                     replace(settings_for(multi_outputs(), "auto", elements, driving_point),
-                             weighting=weighting))
-                 for elements in (splines, known))
+def stop_elements(truth: Truth, form: str) -> list[NonlinearElement]:
+    """The eight stops as splines with automatic knots (9 intervals, IV.C) or as
+    clearances with their true gaps (``form`` "spline" or "clearance")."""
+    if form == "spline":
+        return [NonlinearElement("spline", e.dof, e.ref, intervals=9) for e in truth.elements]
+    return [replace(e, coefficients=None) for e in truth.elements]
+
+
+def stop_run(data: Measurement, truth: Truth, name: str, form: str, *,
+             block_rows: int | str = "auto", weighting: bool = True) -> Run:
+    """multi-18 identified with the stops in ``form`` (:func:`stop_elements`), automatic
+    order (noise weighting off for a noise-free record, which has no noise to weight by)."""
+    settings = settings_for(multi_outputs(), block_rows, stop_elements(truth, form),
+                            (data.input_names[0], W_DIAGONAL))
+    return Run(f"multi-18 {name}".rstrip(), data, truth, replace(settings, weighting=weighting))
 
 
 def curve_errors(run: Run) -> list[float]:
@@ -885,7 +885,7 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
     harmonic = band_lines(data.period_length, data.fs, BAND).size
     resolved = run.result.settings.elements
     q = data.n_inputs + sum(e.n_basis for e in resolved)
-    _, diagnostic = stop_runs(data, truth, "clearance diagnostic")
+    diagnostic = stop_run(data, truth, "clearance diagnostic", "clearance")
     spans = [curve_of(run, k).x[[0, -1]] for k in range(len(resolved))]
     best = [best_curve_error(e, t, tuple(span))
             for e, t, span in zip(resolved, truth.elements, spans, strict=True)]
@@ -897,11 +897,13 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
                                      correlations, curve_errors(run),
                                      curve_errors(diagnostic), strict=True)]
     clean, clean_truth, _ = simulated("multi", 0.0)
-    clean_splines, clean_known = stop_runs(*with_diagonal(clean, clean_truth), "noise-free",
-                                           weighting=False)
+    clean_data, clean_truth = with_diagonal(clean, clean_truth)
+    clean_splines, clean_known = (stop_run(clean_data, clean_truth, "noise-free", form,
+                                           weighting=False) for form in ("spline", "clearance"))
     variant, variant_truth, _ = simulated("multi", variant=ASYMMETRIC_BRACKET)
     variant_data, variant_truth = with_diagonal(variant, variant_truth)
-    variant_splines, variant_known = stop_runs(variant_data, variant_truth, "variant")
+    variant_splines, variant_known = (stop_run(variant_data, variant_truth, "variant", form)
+                                      for form in ("spline", "clearance"))
     counts = [variant_truth.exceedances[e.name] for e in variant_truth.elements]
     return [
         f"Dimension count: the excitation is periodic, so the signal lives on the "

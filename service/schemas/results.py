@@ -114,18 +114,19 @@ class RefinementSummary(_Document):
 
 class ElementSeparability(_Document):
     """Whether the data tell one element's force apart from the other extended inputs
-    (fnsi.separability)."""
+    and from a linear spring and dashpot at the elements (fnsi.separability)."""
 
     element: int = Field(description="Index of the element in settings.elements.")
     name: str = Field(description="The element.")
     unexplained: float = Field(description="Smallest fraction of a combination of its "
-                               "basis functions that the other extended inputs cannot "
-                               "reproduce on the analysis lines [-]: 1 separable, 0 not.",
-                               examples=[0.65])
-    partners: list[str] = Field(description="Elements (or 'input forces') that reproduce "
-                                "that combination, largest share first.")
-    confounded: bool = Field(description="unexplained < 0.1: the curve can be off by more "
-                             "than ten times the model's relative error.")
+                               "basis functions that the others cannot reproduce on the "
+                               "analysis lines [-]: 1 separable, 0 not.", examples=[0.65])
+    partners: list[str] = Field(description="What reproduces that combination, largest "
+                                "share first: elements, 'input forces' or the linear "
+                                "structure.")
+    confounded: bool = Field(description="unexplained below fnsi.separability."
+                             "SEPARABILITY_LIMIT (0.05): the curve can be off by more than "
+                             "twenty times the model's relative error.")
     concern: str | None = Field(description="What a confounded element means and what to "
                                 "change; null when separable.")
 
