@@ -105,7 +105,7 @@ class RefinementSummary(_Document):
     initial_percent: float | None = Field(description="Simulation error of the FNSI model "
                                           "on the residual lines [%]; null when not refined.")
     final_percent: float | None = Field(description="The same after refinement [%].")
-    iterations: int = Field(description="Accepted trust-region steps.")
+    iterations: int = Field(description="Accepted Levenberg-Marquardt steps.")
     evaluations: int = Field(description="Steady-state simulations run.")
     seconds: float = Field(description="Wall time [s].")
     message: str = Field(description="Why the minimisation stopped, or why the model was "

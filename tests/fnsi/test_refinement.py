@@ -10,7 +10,14 @@ import pytest
 
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.nonlinear import NonlinearElement
-from fnsi.refinement import Refinement, _averaged_record, _Problem, real_modal_form, refine
+from fnsi.refinement import (
+    Refinement,
+    _averaged_record,
+    _Problem,
+    levenberg_marquardt,
+    real_modal_form,
+    refine,
+)
 from fnsi.statespace import StateSpaceModel
 from fnsi.validation import compare
 
@@ -199,3 +206,35 @@ def test_a_model_that_cannot_be_simulated_is_not_refined(records):
     refused = Refinement.refused(folded, "why")
     assert refused.summary == "not refined: why" and refused.model is folded
     assert refused.to_json()["initial_percent"] is None
+
+
+def _decay_fit():
+    """Residuals of a * exp(-b t) against noise-free samples of 2 exp(-0.7 t)."""
+    t = np.linspace(0.0, 5.0, 200)
+    y = 2.0 * np.exp(-0.7 * t)
+
+    def residual(x):
+        return x[0] * np.exp(-x[1] * t) - y
+
+    def jacobian(x):
+        e = np.exp(-x[1] * t)
+        return np.column_stack([e, -x[0] * t * e])
+    return residual, jacobian
+
+
+def test_levenberg_marquardt_finds_a_known_minimum():
+    residual, jacobian = _decay_fit()
+    costs = []
+    found = levenberg_marquardt(residual, jacobian, np.array([0.5, 3.0]), max_iterations=60,
+                                tolerance=1e-2, report=lambda k, cost: costs.append(cost))
+    np.testing.assert_allclose(found.x, [2.0, 0.7], rtol=1e-6)
+    assert found.cost < 1e-12 and found.iterations == len(costs)
+    assert costs == sorted(costs, reverse=True)      # accepted steps only lower the cost
+
+
+def test_levenberg_marquardt_stops_at_the_step_limit():
+    residual, jacobian = _decay_fit()
+    found = levenberg_marquardt(residual, jacobian, np.array([0.5, 3.0]), max_iterations=2,
+                                tolerance=1e-2)
+    assert found.iterations == 2 and found.message == "2 steps taken"
+    assert 0.5 * np.sum(residual(found.x) ** 2) == pytest.approx(found.cost)
