@@ -134,7 +134,7 @@ class IdentificationSettings:
         data (:func:`fnsi.refinement.refine`): the returned ``model`` then simulates the
         structure far better when the elements drive it outside the band or the bases are
         noisy (SmallSat single, 39 outputs, true stop: validation NRMSE 4.9 % -> 0.31 %,
-        noise floor 0.24 %), at the cost of seconds to two minutes. The modes, coefficients
+        noise floor 0.24 %), at the cost of seconds to a minute. The modes, coefficients
         and stiffness curves stay FNSI's: the output-error fit does not keep the structure
         of Eq. 17 that the driving-point coefficient relies on. A model that cannot be
         refined (it cannot be simulated, or the problem is too large) is returned as FNSI

@@ -122,7 +122,7 @@ class IdentificationRequest(BaseModel):
         "on the estimation data (output error): the model, its simulation and its errors "
         "get much closer to the measurement when the elements drive the structure outside "
         "the band or the bases are noisy; modes and coefficients stay FNSI's. Takes seconds "
-        "to two minutes. A model that cannot be simulated is returned unrefined: "
+        "to about a minute. A model that cannot be simulated is returned unrefined: "
         "result.refinement.message says why.")
     elements: list[NonlinearElementSpec] = Field(
         default_factory=list, max_length=100, description="Nonlinear elements whose "
