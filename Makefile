@@ -21,10 +21,11 @@ test: $(VENV)/.installed-dev
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
 
-## bench: timing benchmarks of the FNSI stages and of the Newmark integrator
+## bench: timing benchmarks of the FNSI stages, the Newmark integrator and the refinement
 bench: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/fnsi_scaling.py
 	$(BIN)/python benchmarks/newmark.py
+	$(BIN)/python benchmarks/refinement.py
 
 ## bench-paper: reproduce the paper's Section IV and write benchmarks/results/paper.md
 bench-paper: $(VENV)/.installed-dev

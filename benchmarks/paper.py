@@ -673,12 +673,16 @@ def paper_knots(x_range: tuple[float, float], gap: float = AXIAL_GAP) -> tuple[f
     return (low, *(-side[::-1]), *side, high)
 
 
+def averaged_relative(data: Measurement, dof: str, ref: str) -> np.ndarray:
+    """Relative displacement dof - ref averaged over the kept periods, (R, samples): what
+    the identification's bases see (``average_bases``)."""
+    y = period_mean(kept_record(data.y, data.periods, DISCARD), data.periods - DISCARD)
+    return y[..., data.output_index(dof)] - y[..., data.output_index(ref)]
+
+
 def measured_range(measurement: Measurement, dof: str, ref: str) -> tuple[float, float]:
     """Range of the period-averaged relative displacement the identification sees."""
-    periods = measurement.periods - DISCARD
-    y = measurement.y[:, DISCARD * measurement.period_length:]
-    x = y[..., measurement.output_index(dof)] - y[..., measurement.output_index(ref)]
-    x = x.reshape(x.shape[0], periods, -1).mean(axis=1)
+    x = averaged_relative(measurement, dof, ref)
     return float(x.min()), float(x.max())
 
 
@@ -703,10 +707,7 @@ def linear_mimicry(measurement: Measurement, element: NonlinearElement) -> float
     """RMS residual [%] of the best imitation of a linear spring (g = x) by the spline
     basis, over the measured relative displacement: near 0 means the spline cannot be told
     apart from the linear stiffness of the connection (part of the underlying structure)."""
-    periods = measurement.periods - DISCARD
-    y = measurement.y[:, DISCARD * measurement.period_length:]
-    x = y[..., measurement.output_index(NC2[0])] - y[..., measurement.output_index(NC2[1])]
-    x = x.reshape(x.shape[0], periods, -1).mean(axis=1).ravel()
+    x = averaged_relative(measurement, *NC2).ravel()
     basis = element.resolve(x).basis(x)
     fit = basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
     return float(100 * np.sqrt(np.mean((fit - x) ** 2) / np.mean(x**2)))
@@ -877,9 +878,7 @@ ASYMMETRIC_BRACKET = {"bracket_tip_z": 0.4}
 def mirror_correlations(data: Measurement, elements) -> list[float]:
     """Correlation of each stop's relative displacement with its mirror stop's (NC1 with
     NC2, NC3 with NC4, same axis) over the period-averaged kept record."""
-    y = period_mean(kept_record(data.y, data.periods, DISCARD), data.periods - DISCARD)[0]
-    relative = {e.dof: y[:, data.output_index(e.dof)] - y[:, data.output_index(e.ref)]
-                for e in elements}
+    relative = {e.dof: averaged_relative(data, e.dof, e.ref)[0] for e in elements}
     mirror = {"NC1": "NC2", "NC2": "NC1", "NC3": "NC4", "NC4": "NC3"}
     return [float(np.corrcoef(relative[e.dof],
                               relative[mirror[e.dof[:3]] + e.dof[3:]])[0, 1])
@@ -918,12 +917,10 @@ def pair_laws(run: Run, data: Measurement) -> list[PairLaw]:
     """:class:`PairLaw` of each mirror pair; ``residual`` is sqrt(1 - r^2), the RMS of
     x_j - a x_i - c over that of x_j, and q spans the part of x_i's measured range that
     a q + c maps into x_j's."""
-    y = period_mean(kept_record(data.y, data.periods, DISCARD), data.periods - DISCARD)[0]
     laws = []
     for i, j in MIRROR_PAIRS:
         ci, cj = curve_of(run, i), curve_of(run, j)
-        xi, xj = (y[:, data.output_index(c.element.dof)] - y[:, data.output_index(c.element.ref)]
-                  for c in (ci, cj))
+        xi, xj = (averaged_relative(data, c.element.dof, c.element.ref)[0] for c in (ci, cj))
         slope, offset = np.polyfit(xi, xj, 1)
         mapped = slope * ci.x + offset
         q = ci.x[(mapped >= cj.x[0]) & (mapped <= cj.x[-1])]
