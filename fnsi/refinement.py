@@ -70,6 +70,12 @@ STALL_WINDOW = 5
 #: Relative decrease of the criterion below which a step is lost in the rounding of the
 #: simulated responses: the refinement has converged.
 RESOLUTION = 1e-12
+#: Relative accuracy of J^T J formed as a difference of Gram matrices (the projected
+#: outputs, :meth:`_Problem._projected_gram`): a parameter whose derivative lies in the
+#: span the projection removes gets a diagonal of either sign at about 1e-11 of its
+#: unprojected one on the refinement tests. That much is added to the diagonal, which
+#: keeps the matrix positive definite without touching the parameters the data see.
+GRAM_ROUNDING = 1e-10
 #: Most closed-loop sensitivity values (samples x parameters x motions and bases) allowed.
 MAX_SENSITIVITY_VALUES = 200_000_000
 
@@ -622,7 +628,10 @@ class _Problem:
                                        E @ state["B"][block].T)
         return X
 
-    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+    def _sensitivities(self, theta: np.ndarray
+                       ) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
+        """State, dX (R, K, n, p), dE (R, K, q, p) and the weighted loop-output rows of
+        the residual's derivative, (R, K, loop outputs, p), all complex."""
         state = self.evaluate(theta)
         layout = self.layout
         m, p = self.start.n_inputs, layout.size
@@ -638,15 +647,69 @@ class _Problem:
             for block, a, b, s in layout.blocks(theta):
                 RBg = _resolvent(a, b, s, z) @ state["B"][block, m:]
                 dX[:, :, block] += np.einsum("kis,rksp->rkip", RBg, dG, optimize=True)
+        loop = self._output_terms(dX, X, E, np.eye(layout.loop.size), state["CL"])
+        loop += np.einsum("lq,rkqp->rklp", state["DL"], dE, optimize=True)
+        loop *= self.weight[None, :, None, None]
+        return state, dX, dE, loop
+
+    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """d residual / d theta, (rows of :meth:`residual`, p): explicit, for checks;
+        the minimisation uses :meth:`normal_equations`."""
+        state, dX, dE, loop = self._sensitivities(theta)
+        p = self.layout.size
         dR = np.empty((*self.Y.shape, p), dtype=complex)
-        loop = layout.loop
-        eye = np.eye(loop.size)
-        dR[:, :, loop] = self._output_terms(dX, X, E, eye, state["CL"])
-        dR[:, :, loop] += np.einsum("lq,rkqp->rklp", state["DL"], dE, optimize=True)
+        dR[:, :, self.layout.loop] = loop
         if self.other.size:
             dR[:, :, self.other] = self._projected_jacobian(state, dX, dE)
-        dR[:, :, loop] *= self.weight[None, :, None, None]
         return np.concatenate([dR.real.reshape(-1, p), dR.imag.reshape(-1, p)]) / self.scale
+
+    def normal_equations(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """J^T J (p, p) and J^T r (p,) of :meth:`jacobian` and :meth:`residual`, without
+        forming the rows of the projected outputs (:meth:`_projected_gram`)."""
+        state, dX, dE, loop = self._sensitivities(theta)
+        p = self.layout.size
+        J = np.concatenate([loop.real.reshape(-1, p), loop.imag.reshape(-1, p)])
+        r = state["residual"][:, :, self.layout.loop]
+        r = np.concatenate([r.real.ravel(), r.imag.ravel()])
+        gram, gradient = J.T @ J, J.T @ r
+        if self.other.size:
+            other_gram, other_gradient = self._projected_gram(state, dX, dE)
+            gram, gradient = gram + other_gram, gradient + other_gradient
+        return gram / self.scale**2, gradient / self.scale**2
+
+    def _stacked_other(self, state: dict, dX: np.ndarray, dE: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """dPhi as stacked real rows (2 R K, n + q, p) and the other outputs' residual
+        (2 R K, other outputs), real parts then imaginary parts per realisation."""
+        R_, K = self.Y.shape[:2]
+        p = dX.shape[3]
+        dPhi = self.weight[None, :, None, None] * np.concatenate([dX, dE], axis=2)
+        rows = np.concatenate([dPhi.real, dPhi.imag], axis=1).reshape(R_ * 2 * K, -1, p)
+        residual = state["residual"][:, :, self.other]
+        r = np.concatenate([residual.real, residual.imag], axis=1).reshape(R_ * 2 * K, -1)
+        return rows, r
+
+    def _projected_gram(self, state: dict, dX: np.ndarray, dE: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """J_o^T J_o and J_o^T r_o of the other outputs' rows (:meth:`_projected_jacobian`).
+
+        With D = dPhi c and S = R^-T dPhi^T r, J_o = (I - Pi) D - Q S; Q^T (I - Pi) = 0 and
+        Q^T r = 0 leave J_o^T J_o = D^T D - (Q^T D)^T (Q^T D) + S^T S and J_o^T r = D^T r,
+        sums over the rows of products of (n + q)-sized factors: the (rows, outputs,
+        parameters) array of the explicit Jacobian is never formed.
+        """
+        rows, r = self._stacked_other(state, dX, dE)
+        coef, Q, Rm = state["coef"], state["Q"], state["R"]
+        x, j, p = rows.shape
+        flat = rows.reshape(x * j, p)
+        d_d = np.matmul(coef @ coef.T, rows).reshape(x * j, p).T @ flat
+        q_d = np.einsum("ijp,jo->iop", (Q.T @ rows.reshape(x, j * p)).reshape(-1, j, p), coef,
+                        optimize=True).reshape(-1, p)
+        s = solve_triangular(Rm, (rows.reshape(x, j * p).T @ r).reshape(j, -1),
+                             trans="T").reshape(j, p, -1).transpose(1, 0, 2).reshape(p, -1)
+        s_s = s @ s.T
+        gram = d_d - q_d.T @ q_d + s_s + np.diag(GRAM_ROUNDING * (np.diag(d_d) + np.diag(s_s)))
+        return gram, (r @ coef.T).reshape(x * j) @ flat
 
     def _projected_jacobian(self, state: dict, dX: np.ndarray, dE: np.ndarray) -> np.ndarray:
         """Jacobian of the projected residual r = -(I - Pi) Y of the other outputs.
@@ -656,14 +719,9 @@ class _Problem:
         Returns (R, K, other outputs, p), complex.
         """
         R_, K = self.Y.shape[:2]
-        p = dX.shape[3]
-        w = self.weight[None, :, None, None]
-        dPhi = w * np.concatenate([dX, dE], axis=2)                          # (R, K, n+q, p)
-        rows = np.concatenate([dPhi.real, dPhi.imag], axis=1).reshape(R_ * 2 * K, -1, p)
+        rows, r = self._stacked_other(state, dX, dE)
         coef, Q, Rm = state["coef"], state["Q"], state["R"]
-        residual = state["residual"][:, :, self.other]
-        r = np.concatenate([residual.real, residual.imag], axis=1).reshape(R_ * 2 * K, -1)
-        x, j = rows.shape[:2]
+        x, j, p = rows.shape
         # plain matrix products in (row, parameter, output) order: the batched einsum
         # forms of these two contractions were slower
         first = (rows.transpose(0, 2, 1).reshape(x * p, j) @ coef).reshape(x, -1)
@@ -726,7 +784,8 @@ class Minimum:
 
 
 def levenberg_marquardt(residual: Callable[[np.ndarray], np.ndarray],
-                        jacobian: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, *,
+                        normal_equations: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                        x0: np.ndarray, *,
                         max_iterations: int, tolerance: float,
                         report: Callable[[int, float], None] | None = None) -> Minimum:
     """Minimise 0.5 ||r(x)||^2 by Levenberg-Marquardt steps solved on the Gram matrix.
@@ -735,14 +794,17 @@ def levenberg_marquardt(residual: Callable[[np.ndarray], np.ndarray],
     seen so far (Marquardt's scaling, invariant to the units of the parameters) and mu
     updated from the ratio of the actual to the predicted decrease (Nielsen's rule). The
     refinement's Jacobians are tall (residual lines x outputs, 1e5 rows, against 1e2
-    parameters): J^T J is one matrix product, where a trust-region solver's SVD of J
-    took a third of a refinement at 39 outputs.
+    parameters): J^T J and J^T r are formed without J's rows where the structure allows
+    (:meth:`_Problem.normal_equations`), where a trust-region solver's SVD of J took a
+    third of a refinement at 39 outputs.
 
     Parameters
     ----------
-    residual, jacobian : callable
-        r(x), shape (rows,), and J(x) = dr/dx, shape (rows, parameters); J is asked only
-        at accepted points, after r at the same point.
+    residual : callable
+        r(x), shape (rows,).
+    normal_equations : callable
+        x -> (J^T J, J^T r) with J = dr/dx, shapes (parameters, parameters) and
+        (parameters,); asked only at accepted points, after r at the same point.
     x0 : ndarray, shape (parameters,)
     max_iterations : int
         Most accepted steps.
@@ -764,13 +826,13 @@ def levenberg_marquardt(residual: Callable[[np.ndarray], np.ndarray],
     scale = np.zeros(x.size)
     mu, nu = 1e-3, 2.0   # damping relative to the scale D^2
     while len(costs) <= max_iterations:
-        J = jacobian(x)
-        gram, gradient = J.T @ J, J.T @ r
+        gram, gradient = normal_equations(x)
         scale = np.maximum(scale, np.diag(gram))
         scale[scale == 0.0] = 1.0
         while True:
-            step = _damped_step(gram, gradient, mu * scale)
-            predicted = 0.5 * float(step @ (mu * scale * step - gradient))
+            damping = mu * scale
+            step = _damped_step(gram, gradient, damping)
+            predicted = 0.5 * float(step @ (damping * step - gradient))
             r_new = residual(x + step)
             cost_new = 0.5 * float(r_new @ r_new)
             ratio = (cost - cost_new) / predicted if predicted > 0.0 else -1.0
@@ -873,7 +935,7 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
                      f"refinement iteration {iteration}: simulation error "
                      f"{100.0 * np.sqrt(2.0 * cost):.3g} %")
 
-    solution = levenberg_marquardt(problem.residual, problem.jacobian, theta0,
+    solution = levenberg_marquardt(problem.residual, problem.normal_equations, theta0,
                                    max_iterations=max_iterations, tolerance=tolerance,
                                    report=report)
     final = 100.0 * np.sqrt(2.0 * solution.cost)

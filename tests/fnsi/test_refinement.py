@@ -73,6 +73,11 @@ def test_jacobian_matches_finite_differences_on_the_loop_outputs(records):
 
     assert column_errors(rows).max() < 1e-4
     assert column_errors(~rows).max() < 1e-3
+    # the minimisation's normal equations, formed without the projected rows
+    gram, gradient = problem.normal_equations(theta)
+    np.testing.assert_allclose(gram, J.T @ J, rtol=1e-9, atol=1e-12 * np.abs(gram).max())
+    np.testing.assert_allclose(gradient, J.T @ problem.residual(theta), rtol=1e-9,
+                               atol=1e-12 * np.abs(gradient).max())
 
 
 def _finite_difference_jacobian(problem: _Problem, theta: np.ndarray) -> np.ndarray:
@@ -216,16 +221,17 @@ def _decay_fit():
     def residual(x):
         return x[0] * np.exp(-x[1] * t) - y
 
-    def jacobian(x):
+    def normal_equations(x):
         e = np.exp(-x[1] * t)
-        return np.column_stack([e, -x[0] * t * e])
-    return residual, jacobian
+        J = np.column_stack([e, -x[0] * t * e])
+        return J.T @ J, J.T @ residual(x)
+    return residual, normal_equations
 
 
 def test_levenberg_marquardt_finds_a_known_minimum():
-    residual, jacobian = _decay_fit()
+    residual, normal_equations = _decay_fit()
     costs = []
-    found = levenberg_marquardt(residual, jacobian, np.array([0.5, 3.0]), max_iterations=60,
+    found = levenberg_marquardt(residual, normal_equations, np.array([0.5, 3.0]), max_iterations=60,
                                 tolerance=1e-2, report=lambda k, cost: costs.append(cost))
     np.testing.assert_allclose(found.x, [2.0, 0.7], rtol=1e-6)
     assert found.cost < 1e-12 and found.iterations == len(costs)
@@ -233,8 +239,8 @@ def test_levenberg_marquardt_finds_a_known_minimum():
 
 
 def test_levenberg_marquardt_stops_at_the_step_limit():
-    residual, jacobian = _decay_fit()
-    found = levenberg_marquardt(residual, jacobian, np.array([0.5, 3.0]), max_iterations=2,
+    residual, normal_equations = _decay_fit()
+    found = levenberg_marquardt(residual, normal_equations, np.array([0.5, 3.0]), max_iterations=2,
                                 tolerance=1e-2)
     assert found.iterations == 2 and found.message == "2 steps taken"
     assert 0.5 * np.sum(residual(found.x) ** 2) == pytest.approx(found.cost)
