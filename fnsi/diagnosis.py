@@ -12,11 +12,13 @@ candidate missing effects in three stages, from cheap to expensive:
    velocity functions acting through one force (rank-one B^e), which also gives the
    shape of the force. The reduction of the noise-weighted residual ranks the locations;
    one set of line-wise products serves them all.
-2. **Compare kinds** at the best locations with the same fixed-pole fit, each with a
-   linear spring at its location (the starting model absorbed part of the effect as
-   linear stiffness): clearance (gaps searched; symmetric, asymmetric or one-sided),
-   cubic stiffness (hardening or softening), quadratic stiffness (asymmetry), Coulomb
-   friction (smoothing width searched) and quadratic damping.
+2. **Compare kinds** at the best locations, and at every connection among the DOFs of
+   the locations the screening cannot tell apart (:func:`kind_locations`), with the same
+   fixed-pole fit, each with a linear spring at its location (the starting model
+   absorbed part of the effect as linear stiffness): clearance (gaps searched;
+   symmetric, asymmetric or one-sided), cubic stiffness (hardening or softening),
+   quadratic stiffness (asymmetry), Coulomb friction (smoothing width searched) and
+   quadratic damping.
 3. **Validate** the best few by what the user cares about: FNSI identification of the
    revision with the candidate added, simulation with the validation input and the
    validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
@@ -147,12 +149,14 @@ class DiagnosisSettings:
     screening_intervals : int
         Spline intervals (automatic uniform knots) of the location screening.
     top_locations : int
-        Locations whose kinds are compared (stage 2).
+        Best-screened locations whose kinds are compared (stage 2); the connections
+        among the DOFs of near-tied locations are added (:func:`kind_locations`).
     validated_candidates : int
         Element candidates identified and simulated on validation data (stage 3), best
         stage-2 scores first; the missing-mode candidate comes on top.
     curve_locations : int
-        Top locations whose nonparametric stiffness curve is identified for display.
+        Locations of the best stage-2 proposals whose nonparametric stiffness curve is
+        identified for display.
     curve_intervals : int
         Spline intervals of those curves.
     include_missing_mode : bool
@@ -458,6 +462,33 @@ def screen_locations(problem: ScreeningProblem, locations: Sequence[Location],
 
 
 # -- stage 2: kinds --------------------------------------------------------------------------
+NEAR_TIE = 0.98
+"""Screening scores at or above this fraction of the best are ties: with strongly
+correlated channels the screening finds the DOFs a missing force involves but not the
+connection between them (SmallSat single, 39 outputs: a stop from NC2w_Z to any point
+that barely moves explains 95.5 %, the true NC2w_Z-NC2b_Z stop ranks 68th)."""
+
+MAX_KIND_LOCATIONS = 30
+"""Most locations whose kinds are compared (about 0.3 s each at 39 outputs)."""
+
+
+def kind_locations(scores: Sequence[LocationScore], top: int) -> list[LocationScore]:
+    """Locations whose kinds stage 2 compares, in screening order.
+
+    The best ``top``, then every screened location that joins two DOFs (or a DOF and the
+    ground) of the locations scoring within :data:`NEAR_TIE` of the best: the
+    connections the near-ties implicate. The kind-specific fits tell them apart where
+    the screening's generic functions cannot (the 39-output SmallSat stop: its
+    clearance with the gap searched explains 96.93 %, the best tie 96.80 %). At most
+    :data:`MAX_KIND_LOCATIONS`.
+    """
+    best = scores[0].reduction if scores else 0.0
+    ties = [s for s in scores if best > 0.0 and s.reduction >= NEAR_TIE * best]
+    implicated = {end for s in ties for end in (s.location.dof, s.location.ref)}
+    chosen = [s for k, s in enumerate(scores)
+              if k < top or {s.location.dof, s.location.ref} <= implicated]
+    return chosen[:max(top, MAX_KIND_LOCATIONS)]
+
 def _flat_zone(x: np.ndarray, force: np.ndarray) -> tuple[float, float]:
     """Where a restoring-force curve leaves zero slope on each side: (g-, g+) [length].
 
@@ -547,9 +578,10 @@ def _clearance_proposal(problem: ScreeningProblem, score: LocationScore) -> Prop
     if best[0] > sym_cost - 0.02 * explained:
         best = options[0]
     cost, gn_best, gp_best = best
+    shape = ({"spline_flat": _flat_zone(score.curve_x, score.curve_shape)} if score.refined
+             else {})
     return Proposal(Effect.CLEARANCE, location, _clearance(location, gn_best, gp_best),
-                    problem.reduction(cost),
-                    {"spline_flat": _flat_zone(score.curve_x, score.curve_shape)})
+                    problem.reduction(cost), shape)
 
 
 def _single_proposal(problem: ScreeningProblem, effect: Effect, location: Location,
@@ -739,6 +771,8 @@ def _shape_words(proposal: Proposal, score: LocationScore | None) -> str:
         return ""
     if proposal.effect in (Effect.COULOMB_FRICTION, Effect.QUADRATIC_DAMPING):
         return "; the force follows the relative velocity, not the displacement"
+    if not score.refined:
+        return ""
     return f"; the spline curve explains {100 * score.reduction:.0f} % of the residual there"
 
 
@@ -892,7 +926,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
 
     start = time.perf_counter()
     report(0.3, "comparing kinds at the best locations")
-    proposals = sorted((p for s in scores[: settings.top_locations]
+    proposals = sorted((p for s in kind_locations(scores, settings.top_locations)
                         for p in compare_kinds(problem, s)), key=lambda p: -p.reduction)
     timings["kinds_s"] = time.perf_counter() - start
 
@@ -900,14 +934,16 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     chosen = proposals[: settings.validated_candidates]
     steps = len(chosen) + int(settings.include_missing_mode) + settings.curve_locations
     curves, notes = [], []
-    for count, score in enumerate(scores[: settings.curve_locations]):
-        report(0.4 + 0.6 * count / steps, f"stiffness curve {score.location.phrase}")
-        spline = NonlinearElement("spline", score.location.dof, score.location.ref,
+    # curves where the best proposals act (the screening's best location may be a tie)
+    curve_at = list(dict.fromkeys(p.location for p in proposals))[: settings.curve_locations]
+    for count, location in enumerate(curve_at):
+        report(0.4 + 0.6 * count / steps, f"stiffness curve {location.phrase}")
+        spline = NonlinearElement("spline", location.dof, location.ref,
                                   intervals=settings.curve_intervals)
         try:
             curve = study.stiffness_curve(index, spline)
         except ValueError as error:   # e.g. too many spline ordinates for the data
-            notes.append(f"no stiffness curve {score.location.phrase}: {error}")
+            notes.append(f"no stiffness curve {location.phrase}: {error}")
             continue
         if curve is not None:
             curves.append(curve)

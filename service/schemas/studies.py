@@ -101,13 +101,15 @@ class DiagnosisRequest(BaseModel):
         "diagnosis runs (after every revision requested before it).", examples=[0])
     screening_intervals: StrictInt = Field(8, ge=2, le=100, description="Spline intervals of "
                                            "the location screening.")
-    top_locations: StrictInt = Field(3, ge=1, le=50, description="Locations whose kinds of "
-                                     "effect are compared.")
+    top_locations: StrictInt = Field(3, ge=1, le=50, description="Best-screened locations "
+                                     "whose kinds of effect are compared; the connections "
+                                     "among the DOFs of near-tied locations are added.")
     validated_candidates: StrictInt = Field(
         4, ge=1, le=20, description="Candidates identified and simulated on the validation "
         "data (each costs about one revision).")
-    curve_locations: StrictInt = Field(1, ge=0, le=10, description="Top locations whose "
-                                       "nonparametric stiffness curve is identified.")
+    curve_locations: StrictInt = Field(1, ge=0, le=10, description="Locations of the best "
+                                       "proposals whose nonparametric stiffness curve is "
+                                       "identified.")
     curve_intervals: StrictInt = Field(12, ge=2, le=100, description="Spline intervals of "
                                        "those curves.")
     include_missing_mode: bool = Field(True, description="Also validate one more linear mode "

@@ -26,14 +26,17 @@ import pytest
 
 from fnsi.acquisition import acquire
 from fnsi.diagnosis import (
+    MAX_KIND_LOCATIONS,
     Candidate,
     Diagnosis,
     DiagnosisSettings,
     Effect,
     Location,
+    LocationScore,
     beats_noise_floor,
     candidate_locations,
     implausibility,
+    kind_locations,
     rank_candidates,
 )
 from fnsi.excitation import Excitation, periodic_noise
@@ -295,6 +298,31 @@ def test_default_locations_pair_channels_on_one_axis():
     assert [loc.label for loc in declared][-1] == "x1-x4" and len(declared) == 6
     with pytest.raises(ValueError, match="unknown outputs"):
         candidate_locations(NAMES, [("x1", "x9")])
+
+
+def _scored(dof: str, ref: str | None, reduction: float) -> LocationScore:
+    return LocationScore(Location(dof, ref), reduction, False, (-1.0, 1.0), np.zeros(0),
+                         np.zeros(0))
+
+
+def test_kinds_are_compared_at_every_connection_among_near_tied_dofs():
+    """The 39-output SmallSat situation: a stop from w to any point that barely moves
+    explains as much as the true w-b stop, which the screening ranks far down; the
+    connections among the near-ties' DOFs (w, b, p1, p2, ground) get their kinds
+    compared, the others do not."""
+    scores = [_scored("w", "p1", 0.955), _scored("w", "p2", 0.955), _scored("w", None, 0.952),
+              _scored("b", "p1", 0.944), _scored("c", "d", 0.93), _scored("c", None, 0.92),
+              _scored("p1", "p2", 0.90), _scored("w", "c", 0.88), _scored("w", "b", 0.83)]
+    chosen = [s.location for s in kind_locations(scores, top=5)]
+    assert chosen[:5] == [s.location for s in scores[:5]]          # the best, in order
+    assert Location("w", "b") in chosen and Location("p1", "p2") in chosen
+    assert Location("c", None) not in chosen and Location("w", "c") not in chosen
+    assert [s.location for s in kind_locations(scores, top=1)] == [
+        Location("w", "p1"), Location("w", "p2"), Location("w", None), Location("b", "p1"),
+        Location("p1", "p2"), Location("w", "b")]
+    many = [_scored(f"x{k}", None, 0.95) for k in range(80)]
+    assert len(kind_locations(many, top=3)) == MAX_KIND_LOCATIONS
+    assert kind_locations([_scored("w", None, 0.0)], top=3)[0].location == Location("w")
 
 
 def test_noise_floor_criterion():
