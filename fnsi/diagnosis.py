@@ -489,6 +489,7 @@ def kind_locations(scores: Sequence[LocationScore], top: int) -> list[LocationSc
               if k < top or {s.location.dof, s.location.ref} <= implicated]
     return chosen[:max(top, MAX_KIND_LOCATIONS)]
 
+
 def _flat_zone(x: np.ndarray, force: np.ndarray) -> tuple[float, float]:
     """Where a restoring-force curve leaves zero slope on each side: (g-, g+) [length].
 
