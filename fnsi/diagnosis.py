@@ -823,8 +823,16 @@ def _summary(candidates: Sequence[Candidate], before: float, floor: float) -> st
         return (f"No physically plausible candidate improves the validation error "
                 f"({before:.3g} %) beyond {floor_words}. The best improvement comes from "
                 f"{doubtful[0].explanation}.")
+    unjudged = [c for c in candidates if not math.isfinite(c.validation_nrmse_percent)]
+    if not unjudged:
+        return (f"No candidate improves the validation error ({before:.3g} %) beyond "
+                f"{floor_words}: no missing effect is detected at the locations screened.")
+    # a candidate whose model cannot run is not evidence of absence
     return (f"No candidate improves the validation error ({before:.3g} %) beyond "
-            f"{floor_words}: no missing effect is detected at the locations screened.")
+            f"{floor_words}, but {len(unjudged)} of the {len(candidates)} could not be run on "
+            f"the validation input and were not judged ({unjudged[0].failure}): a missing "
+            f"effect may still act there. Try a study with refine: true, which fits each "
+            f"model by its simulation error.")
 
 
 def _unidentified(effect: Effect, location: Location | None,

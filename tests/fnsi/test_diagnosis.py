@@ -33,6 +33,7 @@ from fnsi.diagnosis import (
     Effect,
     Location,
     LocationScore,
+    _summary,
     beats_noise_floor,
     candidate_locations,
     implausibility,
@@ -378,3 +379,16 @@ def test_implausible_candidates_rank_after_plausible_ones_and_are_not_a_finding(
     alone = Diagnosis(0, 10.0, 0.3, (negative_stop, mode), (), (), (), "", {})
     assert negative_stop.beats_noise_floor and not alone.found
     assert alone.to_json()["candidates"][0]["concern"].startswith("the identified contact")
+
+
+def test_candidates_that_cannot_run_are_not_evidence_of_absence():
+    """39 SmallSat outputs, unrefined: FNSI's models with a stop diverge on the
+    validation input; the verdict must not say that nothing is missing."""
+    mode = _candidate(Effect.MISSING_MODE, 9.8)
+    diverged = dataclasses.replace(_candidate(Effect.CLEARANCE, math.inf),
+                                   failure="the simulation diverged")
+    assert _summary([mode], 10.0, 0.3).endswith("no missing effect is detected at the "
+                                                "locations screened.")
+    verdict = _summary([mode, diverged], 10.0, 0.3)
+    assert "1 of the 2 could not be run" in verdict and "the simulation diverged" in verdict
+    assert "refine: true" in verdict and "no missing effect is detected" not in verdict
