@@ -89,6 +89,7 @@ from fnsi.smallsat import (
 from fnsi.spectra import band_lines, kept_record, output_spectra, period_mean
 from fnsi.stabilisation import macx_matrix
 from fnsi.stiffness import StiffnessCurve, curve_error_percent, stiffness_curve
+from fnsi.subspace import stacked_powers
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / "cache"
@@ -467,17 +468,18 @@ def input_rank(run: Run) -> tuple[int, int]:
     """Numerical rank of the stacked extended inputs E_i (Eq. 10) of a run, and its row
     count (m + s) i.
 
-    The rank counts singular values above max(shape) x eps x the largest (numpy's
-    ``matrix_rank`` rule): the directions below are fixed by rounding, not by the data.
+    E_i as :func:`fnsi.subspace.decompose` forms it (columns scaled to unit RMS). The rank
+    counts singular values above max(shape) x eps x the largest (numpy's ``matrix_rank``
+    rule): the directions below are fixed by rounding, not by the data.
     """
     settings = run.result.settings
     spectra = extended_spectra(run.measurement.select(settings.inputs, settings.outputs),
                                settings)[0]
     e = spectra.inputs.reshape(-1, spectra.inputs.shape[2])
     e = e / np.sqrt(np.mean(np.abs(e) ** 2, axis=0))
-    z = np.tile(spectra.z, spectra.inputs.shape[0])
-    stacked = np.concatenate([z[:, None] ** p * e for p in range(settings.block_rows)], axis=1)
-    stacked = np.concatenate([stacked.real, stacked.imag])
+    stacked = np.empty((2 * e.shape[0], e.shape[1] * settings.block_rows))
+    stacked_powers(e, np.tile(spectra.z, spectra.inputs.shape[0]), settings.block_rows,
+                   stacked)
     return int(np.linalg.matrix_rank(stacked)), stacked.shape[1]
 
 
@@ -860,8 +862,7 @@ def multi_workload(measurement: Measurement, truth: Truth) -> tuple[Run, list[st
         _save("fig12_curves_multi18.png", plot_stiffness(
             curves, truths=list(truth.elements),
             title="multi-18: WEMS restoring forces (paper Fig. 12 a-f)", units=MODEL_UNITS,
-            warnings=[f"confounded (u = {s.unexplained:.3f})" if s.confounded else None
-                      for s in run.result.separability])),
+            warnings=[s.caption for s in run.result.separability])),
     ]
     lines += ["", *multi_evidence(run, data, truth)]
     summary = {"max_freq_err_pct": run.max_frequency_error,
@@ -875,19 +876,20 @@ def multi_workload(measurement: Measurement, truth: Truth) -> tuple[Run, list[st
 ASYMMETRIC_BRACKET = {"bracket_tip_z": 0.4}
 
 
-def mirror_correlations(data: Measurement, elements) -> list[float]:
-    """Correlation of each stop's relative displacement with its mirror stop's (NC1 with
-    NC2, NC3 with NC4, same axis) over the period-averaged kept record."""
-    relative = {e.dof: averaged_relative(data, e.dof, e.ref)[0] for e in elements}
-    mirror = {"NC1": "NC2", "NC2": "NC1", "NC3": "NC4", "NC4": "NC3"}
-    return [float(np.corrcoef(relative[e.dof],
-                              relative[mirror[e.dof[:3]] + e.dof[3:]])[0, 1])
-            for e in elements]
-
-
 MIRROR_PAIRS = ((0, 1), (2, 3), (4, 5), (6, 7))
 """Indices of the mirror stops among the eight (NC1 and NC2, NC3 and NC4, lateral then
 axial), the order of :func:`stop_elements`."""
+
+
+def mirror_correlations(data: Measurement, elements) -> list[float]:
+    """Correlation of each stop's relative displacement with its mirror stop's
+    (:data:`MIRROR_PAIRS`, elements in the order of :func:`stop_elements`) over the
+    period-averaged kept record."""
+    relative = [averaged_relative(data, e.dof, e.ref)[0] for e in elements]
+    correlations = [math.nan] * len(elements)
+    for i, j in MIRROR_PAIRS:
+        correlations[i] = correlations[j] = float(np.corrcoef(relative[i], relative[j])[0, 1])
+    return correlations
 
 
 @dataclass(frozen=True)
@@ -950,11 +952,11 @@ def pair_figure(laws: list[PairLaw]) -> str:
     return _save("fig12g_pair_forces_multi18.png", png_bytes(figure))
 
 
-def pair_lines(run: Run, data: Measurement, clean: Run, clean_data: Measurement,
-               ) -> list[str]:
-    """Table and figure of :func:`pair_laws` on the measured and noise-free records."""
+def pair_lines(run: Run, data: Measurement, each: list[float], clean: Run,
+               clean_data: Measurement) -> list[str]:
+    """Table and figure of :func:`pair_laws` on the measured and noise-free records;
+    ``each`` holds the curve error of every stop of ``run``."""
     laws, clean_laws = pair_laws(run, data), pair_laws(clean, clean_data)
-    each = curve_errors(run)
     rows = [[f"{law.names[0]} + {law.names[1]}", f"{law.slope:+.3f}",
              f"{law.residual:.3f}", f"{each[i]:.1f}, {each[j]:.1f}",
              f"{law.error_pct:.1f}", f"{free.error_pct:.1f}"]
@@ -1030,12 +1032,13 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
     best = [best_curve_error(e, t, tuple(span))
             for e, t, span in zip(resolved, truth.elements, spans, strict=True)]
     correlations = mirror_correlations(data, truth.elements)
+    errors = curve_errors(run)
     rows = [[f"{s.name[len('spline '):]}", f"{s.unexplained:.3f}",
              ", ".join(p.split(" ", 1)[-1] for p in s.partners), f"{c.unexplained:.3f}",
              f"{r:+.3f}", f"{e:.1f}", f"{d:.1f}"]
             for s, c, r, e, d in zip(run.result.separability, diagnostic.result.separability,
-                                     correlations, curve_errors(run),
-                                     curve_errors(diagnostic), strict=True)]
+                                     correlations, errors, curve_errors(diagnostic),
+                                     strict=True)]
     clean, clean_truth, _ = simulated("multi", 0.0)
     clean_data, clean_truth = with_diagonal(clean, clean_truth)
     clean_splines, clean_known = (stop_run(clean_data, clean_truth, "noise-free", form,
@@ -1081,7 +1084,7 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
         f"noise-free record the spline curves are off by {_percents(curve_errors(clean_splines))} "
         f"% (clearances: {_percents(curve_errors(clean_known))} %).",
         "",
-        *pair_lines(run, data, clean_splines, clean_data),
+        *pair_lines(run, data, errors, clean_splines, clean_data),
         "",
         f"Variant without the mirror symmetry in Z: the bracket tip node NC1b 2.5 times "
         f"more flexible axially (`ASYMMETRIC_BRACKET`), the same excitation. Contacts "

@@ -45,8 +45,7 @@ from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
-import scipy.linalg
-from scipy.linalg import solve_triangular
+from scipy.linalg import cho_factor, cho_solve, lstsq, solve_triangular
 
 from fnsi.errors import json_float
 from fnsi.measurement import Measurement
@@ -861,9 +860,9 @@ def _damped_step(gram: np.ndarray, gradient: np.ndarray, damping: np.ndarray) ->
     d = np.sqrt(np.diag(gram) + damping)
     system = (gram + np.diag(damping)) / d[:, None] / d[None, :]
     try:
-        solution = scipy.linalg.cho_solve(scipy.linalg.cho_factor(system), -gradient / d)
+        solution = cho_solve(cho_factor(system), -gradient / d)
     except np.linalg.LinAlgError:
-        solution = scipy.linalg.lstsq(system, -gradient / d)[0]
+        solution = lstsq(system, -gradient / d)[0]
     return solution / d
 
 
@@ -929,6 +928,7 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     except SimulationDivergedError as error:
         raise ValueError(f"the starting model cannot be simulated, so it cannot be refined: "
                          f"{error}") from error
+
     def report(iteration: int, cost: float) -> None:
         if progress is not None:
             progress(min(iteration / max_iterations, 1.0),

@@ -198,11 +198,7 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
 
 def _confounding(result: IdentificationResult, element: NonlinearElement) -> str | None:
     """Short warning for the stiffness panel of a confounded element, else None."""
-    for separation in result.separability:
-        if separation.name == element.name and separation.confounded:
-            return (f"confounded with {', '.join(separation.partners)} "
-                    f"(u = {separation.unexplained:.3f}): not to be trusted")
-    return None
+    return next((s.caption for s in result.separability if s.name == element.name), None)
 
 
 def _macx_figure(result: IdentificationResult, truth: dict[str, Any] | None) -> bytes:

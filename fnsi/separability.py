@@ -103,6 +103,20 @@ class Separability:
                 "connections move independently, give the element its known form (e.g. a "
                 "clearance instead of a spline), or use fewer spline intervals")
 
+    @property
+    def caption(self) -> str | None:
+        """Short warning for the figure panel of a confounded element; None when separable.
+
+        Examples
+        --------
+        >>> Separability(0, "spline a", 0.007, ("spline b",)).caption
+        'confounded with spline b (u = 0.007): not to be trusted'
+        """
+        if not self.confounded:
+            return None
+        return (f"confounded with {', '.join(self.partners) or 'the others'} "
+                f"(u = {self.unexplained:.3f}): not to be trusted")
+
     def to_json(self) -> dict:
         """``{"element", "name", "unexplained", "partners", "confounded", "concern"}``."""
         return {"element": self.element, "name": self.name,

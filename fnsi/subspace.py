@@ -185,7 +185,7 @@ def memory_estimate(n_lines: int, n_realisations: int, n_extended: int, n_output
     return int(real + complex_tmp + chunk)
 
 
-def _stacked(X: np.ndarray, z: np.ndarray, block_rows: int, out: np.ndarray) -> None:
+def stacked_powers(X: np.ndarray, z: np.ndarray, block_rows: int, out: np.ndarray) -> None:
     """Write the transpose of the real data matrix of Eq. 9-11 into ``out`` (2 K, i c).
 
     Row k (and K + k for the imaginary part) holds [X(k), z_k X(k), ..., z_k^(i-1) X(k)].
@@ -214,16 +214,16 @@ def _projected_outputs(E: np.ndarray, Y: np.ndarray, z: np.ndarray, block_rows: 
     qi, li = q * block_rows, n_out * block_rows
     if q < n_out and not r_only:
         Et = np.empty((2 * K, qi))
-        _stacked(E, z, block_rows, Et)
+        stacked_powers(E, z, block_rows, Et)
         Q1 = scipy.linalg.qr(Et, mode="economic", overwrite_a=True, check_finite=False)[0]
         del Et
         Z = np.empty((2 * K, li))
-        _stacked(Y, z, block_rows, Z)
+        stacked_powers(Y, z, block_rows, Z)
         Z -= Q1 @ (Q1.T @ Z)
         return Z
     data = np.empty((2 * K, qi + li))
-    _stacked(E, z, block_rows, data[:, :qi])
-    _stacked(Y, z, block_rows, data[:, qi:])
+    stacked_powers(E, z, block_rows, data[:, :qi])
+    stacked_powers(Y, z, block_rows, data[:, qi:])
     R = scipy.linalg.qr(data, mode="r", overwrite_a=True, check_finite=False)[0]
     return np.triu(R[qi:qi + li, qi:])
 
