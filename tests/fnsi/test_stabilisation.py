@@ -185,6 +185,18 @@ def test_confirmation_needs_a_chain_of_fully_stable_poles():
         confirmed_poles(tables, tolerances, 0)
 
 
+def test_poles_beyond_the_credible_damping_are_never_stable():
+    # a 40 %-damped pole that persists exactly, beside a 2 % one
+    tables = [ModalTable(np.array([9.0, 20.0]), np.array([0.4, 0.02]), np.ones((2, 3)),
+                         ("y0", "y1", "y2"))] * 3
+    flags = confirmed_poles(tables, StabilisationTolerances(), 1)
+    assert [f.tolist() for f in flags[:2]] == [[False, True], [False, True]]
+    loose = confirmed_poles(tables, StabilisationTolerances(max_damping=0.5), 1)
+    assert [f.tolist() for f in loose[:2]] == [[True, True], [True, True]]
+    with pytest.raises(ValueError, match="largest damping ratio"):
+        StabilisationTolerances(max_damping=0.0)
+
+
 @pytest.mark.parametrize("confirmation", [1, 3])
 def test_diagram_flags_the_confirmed_poles(confirmation):
     diagram = stabilisation_diagram(NoisyDecomposition(), FS, max_order=30, band=BAND,
@@ -220,7 +232,8 @@ def test_to_json_is_serialisable_and_complete(diagram):
     data = json.loads(json.dumps(diagram.to_json(shapes=True)))
     assert data["auto_order"] == 6
     assert data["orders"][0] == 2 and data["orders"][-1] == 30
-    assert data["tolerances"] == {"frequency": 0.01, "damping": 0.05, "macx": 0.98}
+    assert data["tolerances"] == {"frequency": 0.01, "damping": 0.05, "macx": 0.98,
+                                  "max_damping": 0.2}
     assert data["confirmation"] == 1
     assert data["confirmed_counts"] == diagram.confirmed_counts().tolist()
     pole = data["poles"][5]["poles"][0]
