@@ -97,6 +97,7 @@ def _identification_settings(args: argparse.Namespace):
         discard_periods=args.discard_periods,
         elements=_elements(args),
         weighting=args.weighting,
+        frequency_warping=args.frequency_warping,
         driving_points=tuple(_pair(text) for text in args.driving_point),
         refine=args.refine,
     )
@@ -187,6 +188,9 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--discard-periods", type=int, default=1)
     parser.add_argument("--weighting", action="store_true",
                         help="weight by the noise covariance estimated between periods")
+    parser.add_argument("--frequency-warping", action="store_true",
+                        help="build the data matrices in a warped frequency variable (bands "
+                        "far below fs: results then do not change with rounding)")
     parser.add_argument("--refine", action="store_true",
                         help="refine the model by minimising its simulation error (slower; "
                         "the model then reproduces the measurement much more closely)")

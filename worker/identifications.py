@@ -22,6 +22,7 @@ def settings_of(request: dict[str, Any], memory_limit_mb: float) -> Identificati
         band=tuple(request["band"]), block_rows=request["block_rows"], order=request["order"],
         max_order=request["max_order"], line_set=request["line_set"],
         discard_periods=request["discard_periods"], weighting=request["weighting"],
+        frequency_warping=request.get("frequency_warping", False),
         refine=request.get("refine", False),
         inputs=request["inputs"], outputs=request["outputs"],
         driving_points=tuple(tuple(p) for p in request["driving_points"]),

@@ -117,6 +117,12 @@ class IdentificationRequest(BaseModel):
                                  "transient.", examples=[1])
     weighting: StrictBool = Field(False, description="Weight the data by the noise covariance "
                             "estimated from the periods.")
+    frequency_warping: StrictBool = Field(
+        False, description="Build the FNSI data matrices in a warped frequency variable that "
+        "spreads the band over the unit circle (the model is mapped back exactly). Use it "
+        "when the band is a small fraction of the sampling rate and many block rows are "
+        "used (e.g. 5-50 Hz at 2.5 kHz, i = 50): there, without it, the order and the "
+        "coefficients can change with rounding.")
     refine: StrictBool = Field(
         False, description="Refine the identified model by minimising its simulation error "
         "on the estimation data (output error): the model, its simulation and its errors "

@@ -7,6 +7,7 @@ import pytest
 
 from fnsi.measurement import Measurement
 from fnsi.newmark import newmark
+from fnsi.smallsat import simulate_preset
 from fnsi.structure import StructuralModel
 
 
@@ -93,6 +94,13 @@ def simulate(model: StructuralModel, force_dofs, *, fs: float = 200.0, period: i
 def simulate_record():
     """The :func:`simulate` function (truth data by the project's Newmark integrator)."""
     return simulate
+
+
+@pytest.fixture(scope="session")
+def single():
+    """SmallSat, paper IV.A: 100 N RMS at NC2w_Z, 8 x 30,000 samples (1.92 M Newmark
+    steps), 0.5 % output noise: (measurement, truth)."""
+    return simulate_preset("single")
 
 
 @pytest.fixture(scope="session")

@@ -270,3 +270,30 @@ def test_identification_reports_a_spline_that_repeats_a_cubic(cubic):
     assert spline_part.confounded and cubic_part.name in spline_part.partners
     document = json.loads(json.dumps(both.to_json()))
     assert document["separability"][0]["confounded"] is True
+
+
+def test_warped_smallsat_identification_is_fixed_by_the_data_not_by_rounding(single):
+    """Single-39 of the paper (band 2 % of fs, i = 50): built in z, a perturbation of a
+    few units in the last place moved the coefficient error from -0.07 to -0.33 % and the
+    order from 6 to 10; warped, the result must not move."""
+    measurement, truth = single
+    clearance = next(e for e in truth.elements if e.dof == "NC2w_Z")
+    settings = IdentificationSettings(
+        band=(5.0, 50.0), block_rows=50, discard_periods=2, weighting=True,
+        elements=(unknown(clearance),), frequency_warping=True)
+    noise = np.random.default_rng(0).standard_normal(measurement.y.shape)
+    perturbed = dataclasses.replace(measurement, y=measurement.y * (1 + 1e-13 * noise))
+    results = [identify(m, settings) for m in (measurement, perturbed)]
+    assert results[0].order == results[1].order
+    mu = [r.coefficients[0].mean_real for r in results]
+    assert mu[1] == pytest.approx(mu[0], rel=1e-6)  # observed 1e-10
+    # over 20 noise realisations the error scatters by 0.30 % (benchmarks/paper.py)
+    assert mu[0] == pytest.approx(clearance.coefficients[0], rel=0.01)
+    # every kept mode is a true one within the paper-reproduction targets (20
+    # realisations: within 0.07 % and 0.7 %)
+    modes = results[0].modal
+    assert modes.n_modes >= 3
+    for f, zeta in zip(modes.frequencies, modes.damping_ratios, strict=True):
+        k = np.argmin(np.abs(truth.modal.frequencies - f))
+        assert f == pytest.approx(truth.modal.frequencies[k], rel=0.002)
+        assert zeta == pytest.approx(truth.modal.damping_ratios[k], rel=0.03)

@@ -19,12 +19,6 @@ def modes():
 
 
 @pytest.fixture(scope="session")
-def single():
-    """Paper IV.A: 100 N RMS at NC2w_Z, 8 x 30,000 samples (1.92 M Newmark steps)."""
-    return smallsat.simulate_preset("single")
-
-
-@pytest.fixture(scope="session")
 def multi():
     """Paper IV.C: 200 N RMS at W along the X-Y diagonal."""
     return smallsat.simulate_preset("multi")

@@ -6,12 +6,13 @@ import dataclasses
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.measurement import Measurement
 from fnsi.modal import modal_table
 from fnsi.spectra import Spectra, output_spectra, transform
-from fnsi.subspace import auto_block_rows, decompose, input_matrices
+from fnsi.subspace import auto_block_rows, band_warp, decompose, input_matrices
 
 FS, PERIOD, BAND = 200.0, 2000, (3.0, 45.0)
 
@@ -63,6 +64,28 @@ def test_linear_modes_from_exact_data(linear, block_rows):
     # approximation of a continuous-time FRF (observed below 1e-4 %, 0.03 %)
     assert df.max() < 1e-4
     assert dz.max() < 5e-3
+
+
+def test_warped_decomposition_returns_the_z_model_of_a_narrow_band():
+    """Exact data of a discrete-time model (order 4, two outputs) on 5-50 Hz at 2.5 kHz,
+    the band of the paper's SmallSat tests, i = 50: built in w, the poles mapped back to
+    z are the true ones to rounding (as built in z: the ill-conditioning of the powers
+    z^p shows with noise, see test_identification)."""
+    fs = 2500.0
+    poles = np.exp(2 * np.pi * np.array([12.0, 31.0]) * (-0.03 + 1j) / fs)
+    A = scipy.linalg.block_diag(*[[[p.real, p.imag], [-p.imag, p.real]] for p in poles])
+    rng = np.random.default_rng(4)
+    B, C, D = rng.standard_normal((4, 1)), rng.standard_normal((2, 4)), np.zeros((2, 1))
+    f = np.linspace(5.0, 50.0, 400)
+    z = np.exp(2j * np.pi * f / fs)
+    U = np.exp(2j * np.pi * rng.random(f.size))
+    H = np.einsum("ij,kjl,lm->kim", C, np.linalg.inv(z[:, None, None] * np.eye(4) - A), B) + D
+    spectra = Spectra(f, fs, U[None, :, None], (H[:, :, 0] * U[:, None])[None], ("u",),
+                      ("y1", "y2"))
+    assert band_warp(z) == pytest.approx(0.961, abs=1e-3)
+    found = decompose(spectra, block_rows=50, max_order=4, warp=True).state_matrices(4)[0]
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(found)),
+                               np.sort_complex(np.linalg.eigvals(A)), rtol=1e-9)
 
 
 def test_identified_frf_matches_receptance(linear):

@@ -71,6 +71,13 @@ def test_refined_identification_simulates_closer(stack, datasets, identified):
     assert "refinement" not in identified["result"] or identified["result"]["refinement"] is None
 
 
+def test_frequency_warping_reaches_the_library(stack, datasets):
+    result = _identify(stack, datasets, frequency_warping=True)["result"]
+    assert result["settings"]["frequency_warping"] is True
+    (coefficient,) = result["coefficients"]
+    np.testing.assert_allclose(coefficient["mean_real"], TRUE_CUBIC, rtol=0.03)
+
+
 def test_identification_result_matches_the_simulated_truth(identified):
     result = identified["result"]
     assert result["order"] == 4
