@@ -3,17 +3,19 @@
 Steps, for the extended input E (forces then basis functions) and the outputs Y on N
 lines z_k = exp(j 2 pi f_k / fs) (several realisations add columns with the same z_k):
 
-0. Frequency warping: the data matrices are built in w_k = (z_k - a) / (1 - a z_k)
-   (:func:`band_warp`), a Moebius map of the unit circle onto itself that spreads the
-   band over it. A model of order n in z is a model of order n in w with the same C
-   and A_w = (A - a I)(I - a A)^-1, so the shift property gives A_w and A is mapped
-   back exactly. Without it, a band that is a small fraction of fs keeps every z_k
-   near 1, the powers z_k^p of Eq. 9-11 are nearly dependent and the elimination of
-   Eq. 14 removes directions that rounding, not the data, defines: on the SmallSat
-   single-nonlinearity test (band 2 % of fs, i = 50) E_i has numerical rank 28 of 100
-   in z and full rank in w, and the coefficient moved by 0.01 % of its value between
-   one and two BLAS threads in z against 1e-8 % in w. Warping with a real pole a is
-   the Laguerre construction of Wahlberg (1991).
+0. Optional frequency warping (``warp``; off by default, see
+   :class:`fnsi.identification.IdentificationSettings`): the data matrices are built in
+   w_k = (z_k - a) / (1 - a z_k) (:func:`band_warp`), a Moebius map of the unit circle
+   onto itself that spreads the band over it. A model of order n in z is a model of
+   order n in w with the same C and A_w = (A - a I)(I - a A)^-1, so the shift property
+   gives A_w and A is mapped back exactly. Without it, a band that is a small fraction
+   of fs keeps every z_k near 1, the powers z_k^p of Eq. 9-11 are nearly dependent and
+   the elimination of Eq. 14 removes directions that rounding, not the data, defines:
+   on the SmallSat single-nonlinearity test (band 2 % of fs, i = 50) E_i has numerical
+   rank 28 of 100 in z and full rank in w, and the coefficient moved by 0.01 % of its
+   value between one and two BLAS threads in z against less than 1e-8 % in w. Warping
+   with a real pole a is the Laguerre construction of Wahlberg (1991). Below, w = z
+   without it.
 1. Data matrices Y_i (l i x N) and E_i ((m+s) i x N) of Eq. 9-11, block row p holding
    w_k^p Y(k); real and imaginary parts side by side (2N real columns), since Gamma_i
    and Lambda_i of Eq. 14 are real.
@@ -425,7 +427,7 @@ def decompose(spectra: Spectra, *, block_rows: int, max_order: int, weighting: b
         [bytes].
     warp : bool
         Build the data matrices in the warped variable of :func:`band_warp` (step 0 of
-        the module; default). False builds them in z, as the paper writes Eq. 9-11.
+        the module). False (default) builds them in z, as the paper writes Eq. 9-11.
 
     Returns
     -------
@@ -504,7 +506,7 @@ def band_warp(z: np.ndarray) -> float:
     Returns
     -------
     float
-        a in (-1, 1); positive when the band lies below fs / 4.
+        a in (-1, 1); positive when the band's geometric centre lies below fs / 4.
 
     Examples
     --------
