@@ -108,6 +108,10 @@ DISCARD = 2
 MODEL_UNITS = (f"{LENGTH_UNIT_MM:g} mm", f"{FORCE_UNIT_N:g} N")
 NC2 = ("NC2w_Z", "NC2b_Z")
 THREE = ("NC2w_Z", "NC2b_Z", "W_Z")
+#: Force and output at the driving point of the single test.
+DRIVING_POINT = ("F_NC2w_Z", "NC2w_Z")
+#: Outputs (None: all 39), block rows and line set of the clearance workloads (IV.A).
+CLEARANCE_WORKLOADS = {"single-39": (None, 50, "all"), "single-3": (THREE, 100, "excited")}
 
 #: Paper Table 4: mode -> (error on frequency %, error on damping %), order 18, 39 outputs.
 PAPER_TABLE_4 = {1: (0.16, -0.01), 3: (0.03, -0.59), 5: (0.11, -0.37), 7: (-0.03, -2.68),
@@ -350,6 +354,14 @@ def settings_for(outputs, block_rows: int, elements, driving_point: tuple[str, s
         line_set=line_set, frequency_warping=frequency_warping)
 
 
+def clearance_settings(name: str, **changes) -> IdentificationSettings:
+    """Settings of single-39 or single-3 (the NC2-Z clearance with its exact gap, IV.A),
+    with ``changes`` to any field."""
+    outputs, block_rows, line_set = CLEARANCE_WORKLOADS[name]
+    return replace(settings_for(outputs, block_rows, [clearance_nc2()], DRIVING_POINT,
+                                line_set=line_set), **changes)
+
+
 # -- report helpers -----------------------------------------------------------------------
 def _fmt(value: float, digits: int = 2) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
@@ -509,13 +521,10 @@ def input_rank(run: Run) -> tuple[int, int, int]:
     return ranks[0], ranks[1], stacked.shape[1]
 
 
-def single_workload(name: str, measurement: Measurement, truth: Truth, outputs,
-                    block_rows: int, line_set: str, paper_modes: dict,
+def single_workload(name: str, measurement: Measurement, truth: Truth, paper_modes: dict,
                     figures: dict[str, str]) -> tuple[Run, list[str], dict]:
     """single-39 or single-3: clearance basis at NC2-Z with the exact gap (IV.A)."""
-    run = Run(name, measurement, truth,
-              settings_for(outputs, block_rows, [clearance_nc2()], ("F_NC2w_Z", "NC2w_Z"),
-                           line_set=line_set), repeats=TIMING_REPEATS)
+    run = Run(name, measurement, truth, clearance_settings(name), repeats=TIMING_REPEATS)
     coef = coefficient_summary(run, AXIAL_ADDED)
     p = PAPER_TABLE_5[name]
     c = run.result.coefficients[0]
@@ -573,16 +582,16 @@ def single_workload(name: str, measurement: Measurement, truth: Truth, outputs,
 def settings_comparison(measurement: Measurement, truth: Truth) -> list[str]:
     """What the weighting and the line set change for single-39 and single-3 (the
     settings the benchmark does not use, for comparison)."""
-    cases = [("single-39", None, 50, "all", False), ("single-3", THREE, 100, "excited", False),
-             ("single-3", THREE, 100, "all", True), ("single-3", THREE, 100, "all", False)]
+    cases = [("single-39", {"weighting": False}), ("single-3", {"weighting": False}),
+             ("single-3", {"line_set": "all"}),
+             ("single-3", {"line_set": "all", "weighting": False})]
     rows = []
-    for name, outputs, block_rows, line_set, weighting in cases:
-        settings = replace(settings_for(outputs, block_rows, [clearance_nc2()],
-                                        ("F_NC2w_Z", "NC2w_Z"), line_set=line_set),
-                           weighting=weighting)
-        run = Run(name, measurement, truth, settings)
+    for name, changes in cases:
+        run = Run(name, measurement, truth, clearance_settings(name, **changes))
         coef = coefficient_summary(run, AXIAL_ADDED)
-        rows.append([name, line_set, "on" if weighting else "off", str(run.result.order),
+        settings = run.result.settings
+        rows.append([name, settings.line_set, "on" if settings.weighting else "off",
+                     str(run.result.order),
                      f"{run.max_frequency_error:.3f}", f"{run.max_damping_error:.2f}",
                      f"{coef['mu_err_pct']:.3f}", f"{coef['log10_re_im']:.2f}",
                      f"{run.time_s:.2f}"])
@@ -602,12 +611,9 @@ def order_sweep(measurement: Measurement, truth: Truth) -> list[str]:
     """The coefficient and the modes at explicit orders (every pole kept, flagged), for
     single-39 and single-3: whether another order than the automatic one would do better."""
     rows = []
-    for name, outputs, block_rows, lines in (("single-39", None, 50, "all"),
-                                             ("single-3", THREE, 100, "excited")):
+    for name in CLEARANCE_WORKLOADS:
         for order in SWEEP_ORDERS:
-            settings = settings_for(outputs, block_rows, [clearance_nc2()],
-                                    ("F_NC2w_Z", "NC2w_Z"), line_set=lines)
-            run = Run(name, measurement, truth, replace(settings, order=order))
+            run = Run(name, measurement, truth, clearance_settings(name, order=order))
             coef = coefficient_summary(run, AXIAL_ADDED)
             rows.append([name, str(order), f"{coef['mu_err_pct']:.3f}",
                          f"{coef['log10_re_im']:.2f}", str(run.result.modal.n_modes),
@@ -638,16 +644,13 @@ def noise_scatter(truth: Truth) -> list[str]:
     clean, _, _ = simulated("single", noise_percent=0.0)
     kept = slice(DISCARD * clean.period_length, None)
     reference = clean.output_index(BRACKET_TIP)
-    cases = {"single-39": (None, 50, "all", TARGETS["single39"]["mu_err_pct"]),
-             "single-3": (THREE, 100, "excited", TARGETS["single3"]["mu_err_pct"])}
+    cases = {"single-39": TARGETS["single39"]["mu_err_pct"],
+             "single-3": TARGETS["single3"]["mu_err_pct"]}
 
     def errors(measurement: Measurement, name: str, compensate: bool = False,
                ) -> tuple[float, float, float, float]:
-        outputs, block_rows, lines, _ = cases[name]
-        settings = settings_for(outputs, block_rows, [clearance_nc2()], ("F_NC2w_Z", "NC2w_Z"),
-                                line_set=lines)
         run = Run(name, measurement, truth,
-                  replace(settings, compensate_basis_noise=compensate))
+                  clearance_settings(name, compensate_basis_noise=compensate))
         c = run.result.coefficients[0]
         return (100 * (c.mean_real / AXIAL_ADDED - 1), c.log10_real_imag,
                 run.max_frequency_error, run.max_damping_error)
@@ -662,7 +665,7 @@ def noise_scatter(truth: Truth) -> list[str]:
             noisy[name, compensate].append(errors(record, name, compensate))
     rows = []
     for (name, compensate), values in noisy.items():
-        target = cases[name][3]
+        target = cases[name]
         mu, log10, freq, damp = (np.array(v) for v in zip(*values, strict=True))
         rows.append([name, "on" if compensate else "off",
                      f"{exact[name][0]:+.3f}", f"{exact[name][1]:.2f}",
@@ -743,13 +746,16 @@ def linear_mimicry(measurement: Measurement, element: NonlinearElement) -> float
     return float(100 * np.sqrt(np.mean((fit - x) ** 2) / np.mean(x**2)))
 
 
+def spline3_settings(element: NonlinearElement) -> IdentificationSettings:
+    """Settings of spline-3: the three outputs, automatic block rows, excited lines."""
+    return settings_for(THREE, "auto", [element], DRIVING_POINT, line_set="excited")
+
+
 def spline_workload(measurement: Measurement, truth: Truth, knots_kind: str,
                     ) -> tuple[Run, list[str], float]:
     """spline-3: cubic splines at NC2-Z, paper knots or automatic knots (IV.B)."""
     element = spline_element(measurement, knots_kind)
-    run = Run(f"spline-3 ({knots_kind} knots)", measurement, truth,
-              settings_for(THREE, "auto", [element], ("F_NC2w_Z", "NC2w_Z"),
-                           line_set="excited"))
+    run = Run(f"spline-3 ({knots_kind} knots)", measurement, truth, spline3_settings(element))
     true_element = next(e for e in truth.elements if (e.dof, e.ref) == NC2)
     curve = curve_of(run, 0)
     error = curve_error_percent(curve, true_element)
@@ -799,7 +805,7 @@ def spline_diagnostic(measurement: Measurement, truth: Truth) -> list[str]:
     for outputs, block_rows, line_set in cases:
         for kind in ("paper", "automatic"):
             settings = settings_for(outputs, block_rows, [spline_element(measurement, kind)],
-                                    ("F_NC2w_Z", "NC2w_Z"), line_set=line_set)
+                                    DRIVING_POINT, line_set=line_set)
             n_outputs = str(len(outputs) if outputs else measurement.n_outputs)
             try:
                 run = Run(f"spline-3 diagnostic ({kind} knots)", measurement, truth, settings)
@@ -1155,6 +1161,11 @@ def _perturbed(record: Measurement, copy: int) -> Measurement:
     return replace(record, y=record.y * (1 + ROUNDING_SIZE * noise))
 
 
+def _span(values: list[float], digits: int) -> str:
+    """'smallest - largest' of ``values``."""
+    return f"{min(values):.{digits}f} - {max(values):.{digits}f}"
+
+
 def rounding_study(single: Measurement, single_truth: Truth, multi: Measurement,
                    multi_truth: Truth) -> list[str]:
     """Whether each workload's result is fixed by its data or by rounding.
@@ -1165,20 +1176,17 @@ def rounding_study(single: Measurement, single_truth: Truth, multi: Measurement,
     """
     data, truth = with_diagonal(multi, multi_truth)
     nc2 = next(e for e in single_truth.elements if (e.dof, e.ref) == NC2)
-    point = ("F_NC2w_Z", "NC2w_Z")
 
     def mu_error(run: Run) -> float:
         return 100 * (run.result.coefficients[0].mean_real / AXIAL_ADDED - 1)
 
     cases = [
         ("single-39", single, single_truth, "mu error",
-         lambda m: settings_for(None, 50, [clearance_nc2()], point), mu_error),
+         lambda m: clearance_settings("single-39"), mu_error),
         ("single-3", single, single_truth, "mu error",
-         lambda m: settings_for(THREE, 100, [clearance_nc2()], point, line_set="excited"),
-         mu_error),
+         lambda m: clearance_settings("single-3"), mu_error),
         ("spline-3, automatic knots", single, single_truth, "curve error",
-         lambda m: settings_for(THREE, "auto", [spline_element(m, "automatic")], point,
-                                line_set="excited"),
+         lambda m: spline3_settings(spline_element(m, "automatic")),
          lambda run: curve_error_percent(curve_of(run, 0), nc2)),
         ("multi-18", data, truth, "largest curve error",
          lambda m: settings_for(multi_outputs(), "auto", stop_elements(truth, "spline"),
@@ -1198,10 +1206,8 @@ def rounding_study(single: Measurement, single_truth: Truth, multi: Measurement,
             rows.append([name, "w" if warp else "z",
                          ", ".join(str(r.result.order) for r in found),
                          f"{label}: " + ", ".join(f"{v:+.3f}" for v in values),
-                         f"{min(r.max_frequency_error for r in found):.3f} - "
-                         f"{max(r.max_frequency_error for r in found):.3f}",
-                         f"{min(r.max_damping_error for r in found):.2f} - "
-                         f"{max(r.max_damping_error for r in found):.2f}"])
+                         _span([r.max_frequency_error for r in found], 3),
+                         _span([r.max_damping_error for r in found], 2)])
     return [
         f"Each record identified as is and after multiplying every output sample by 1 + "
         f"{ROUNDING_SIZE:g} x N(0, 1) ({ROUNDING_COPIES} copies, a few units in the last "
@@ -1384,14 +1390,14 @@ def main() -> None:
 
     def single39() -> tuple[list[str], dict]:
         run, lines, summary = single_workload(
-            "single-39", single, single_truth, None, 50, "all", PAPER_TABLE_4,
+            "single-39", single, single_truth, PAPER_TABLE_4,
             {"stabilisation": "fig05_stabilisation_single39.png", "stabilisation_paper": "5",
              "coefficient": "fig07a_mu_single39.png", "coefficient_paper": "7a"})
         return [*lines, macx_figure(run, "fig06_macx_single39.png")], summary
 
     def single3() -> tuple[list[str], dict]:
         _, lines, summary = single_workload(
-            "single-3", single, single_truth, THREE, 100, "excited", PAPER_TABLE_6,
+            "single-3", single, single_truth, PAPER_TABLE_6,
             {"stabilisation": "fig08_stabilisation_single3.png", "stabilisation_paper": "8",
              "coefficient": "fig07b_mu_single3.png", "coefficient_paper": "7b"})
         return [*lines, "", *settings_comparison(single, single_truth), "",
