@@ -45,7 +45,7 @@ from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, lstsq, solve_triangular
+from scipy.linalg import solve_triangular
 
 from fnsi.errors import json_float
 from fnsi.measurement import Measurement
@@ -53,6 +53,7 @@ from fnsi.nonlinear import NonlinearElement, NonlinearityKind
 from fnsi.simulation import SimulationDivergedError, element_incidence, simulate_periodic
 from fnsi.spectra import INTEGRATIONS, kept_record, period_mean
 from fnsi.statespace import StateSpaceModel
+from fnsi.subspace import solve_normal_equations
 
 Progress = Callable[[float, str], None]
 
@@ -830,7 +831,7 @@ def levenberg_marquardt(residual: Callable[[np.ndarray], np.ndarray],
         scale[scale == 0.0] = 1.0
         while True:
             damping = mu * scale
-            step = _damped_step(gram, gradient, damping)
+            step = solve_normal_equations(gram + np.diag(damping), -gradient)
             predicted = 0.5 * float(step @ (damping * step - gradient))
             r_new = residual(x + step)
             cost_new = 0.5 * float(r_new @ r_new)
@@ -852,18 +853,6 @@ def levenberg_marquardt(residual: Callable[[np.ndarray], np.ndarray],
                            f"{STALL_WINDOW} steps lowered the error by less than "
                            f"{100 * tolerance:g} %")
     return Minimum(x, cost, len(costs) - 1, f"{max_iterations} steps taken")
-
-
-def _damped_step(gram: np.ndarray, gradient: np.ndarray, damping: np.ndarray) -> np.ndarray:
-    """dx solving (gram + diag(damping)) dx = -gradient, equilibrated; minimum norm when
-    singular."""
-    d = np.sqrt(np.diag(gram) + damping)
-    system = (gram + np.diag(damping)) / d[:, None] / d[None, :]
-    try:
-        solution = cho_solve(cho_factor(system), -gradient / d)
-    except np.linalg.LinAlgError:
-        solution = lstsq(system, -gradient / d)[0]
-    return solution / d
 
 
 def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,

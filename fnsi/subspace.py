@@ -519,9 +519,8 @@ def band_warp(z: np.ndarray) -> float:
     array([0.61, 2.53])
     """
     theta = np.abs(np.angle(z))
-    positive = theta[theta > 0]
     # a DC line has no scale: the lowest other line sets the band's low end
-    low = positive.min() if positive.size else np.pi / 2
+    low = theta[theta > 0].min()
     c = 1.0 / np.tan(np.sqrt(low * theta.max()) / 2)
     return float((c - 1) / (c + 1))
 
@@ -608,12 +607,13 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
     G[:, n:, :, n:] = P[:, None, :, None] * np.eye(n_out)[None, :, None, :]
     g = np.concatenate([gB @ W.conj(), gD], axis=1)  # (q, m)
     G = G.real.reshape(q * m, q * m)
-    theta = _solve_normal(G, g.real.reshape(q * m)).reshape(q, m).T
+    theta = solve_normal_equations(G, g.real.reshape(q * m)).reshape(q, m).T
     return theta[:n], theta[n:]
 
 
-def _solve_normal(G: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """Solve symmetric positive (semi)definite normal equations after equilibration."""
+def solve_normal_equations(G: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """x solving G x = g, G symmetric positive (semi)definite, by Cholesky after
+    equilibration; the minimum-norm solution when G is singular."""
     diag = np.sqrt(np.diag(G))
     diag[diag == 0] = 1.0
     Gs = G / diag[:, None] / diag[None, :]
