@@ -78,9 +78,9 @@ class StabilisationTolerances:
         more damped is never stable in damping, so it is neither counted by the order
         choice nor kept. Noise and out-of-band dynamics are fitted by such poles, and
         they can persist from order to order (on the SmallSat single-nonlinearity test,
-        39 outputs, a 8.9 Hz pole at 44 % damping in one realisation of twenty); structural
-        modes of bolted assemblies rarely exceed a few percent, the most damped mode of
-        our SmallSat model has 16 %.
+        39 outputs, an 8.9 Hz pole at 44 % damping in 2 noise realisations of 20). The
+        most damped mode of our SmallSat model has 16 %; raise it for structures with
+        heavier damping.
     """
 
     frequency: float = 0.01
