@@ -522,8 +522,11 @@ def input_rank(run: Run) -> tuple[int, int, int]:
 
 
 def single_workload(name: str, measurement: Measurement, truth: Truth, paper_modes: dict,
-                    figures: dict[str, str]) -> tuple[Run, list[str], dict]:
-    """single-39 or single-3: clearance basis at NC2-Z with the exact gap (IV.A)."""
+                    figures: dict[str, str]) -> tuple[Run, list[str], dict, dict]:
+    """single-39 or single-3: clearance basis at NC2-Z with the exact gap (IV.A).
+
+    Returns the run, the report lines, the acceptance summary and the
+    :func:`frf_evidence` of the run (what bounds its coefficient)."""
     run = Run(name, measurement, truth, clearance_settings(name), repeats=TIMING_REPEATS)
     coef = coefficient_summary(run, AXIAL_ADDED)
     p = PAPER_TABLE_5[name]
@@ -576,7 +579,7 @@ def single_workload(name: str, measurement: Measurement, truth: Truth, paper_mod
                "max_damp_err_pct": run.max_damping_error,
                "mu_err_pct": coef["mu_err_pct"], "log10_re_im": coef["log10_re_im"],
                "time_s": run.time_s}
-    return run, lines, summary
+    return run, lines, summary, evidence
 
 
 def settings_comparison(measurement: Measurement, truth: Truth) -> list[str]:
@@ -632,7 +635,20 @@ def order_sweep(measurement: Measurement, truth: Truth) -> list[str]:
 NOISE_REALISATIONS, NOISE_SEED = 20, 1000
 
 
-def noise_scatter(truth: Truth) -> list[str]:
+@dataclass(frozen=True)
+class Scatter:
+    """Coefficient errors [%] of one workload over the noise realisations."""
+
+    errors: np.ndarray
+    target: float
+
+    @property
+    def within(self) -> int:
+        """Realisations whose |error| meets the target."""
+        return int(np.sum(np.abs(self.errors) <= self.target))
+
+
+def noise_scatter(truth: Truth) -> tuple[list[str], dict[str, Scatter]]:
     """How much of the single-39 / single-3 coefficient error is this realisation's noise.
 
     The noise-free single record is identified once (the method's own error), then
@@ -640,6 +656,9 @@ def noise_scatter(truth: Truth) -> list[str]:
     noise (0.5 % of the bracket-tip RMS in 0-100 Hz, as :func:`fnsi.acquisition.acquire`
     adds it), each identified with the benchmark's settings, without and with the
     compensation of the basis noise (``compensate_basis_noise``).
+
+    Returns the report lines and, per workload, the :class:`Scatter` of the benchmark's
+    own settings (no compensation).
     """
     clean, _, _ = simulated("single", noise_percent=0.0)
     kept = slice(DISCARD * clean.period_length, None)
@@ -663,14 +682,16 @@ def noise_scatter(truth: Truth) -> list[str]:
         record = replace(clean, y=clean.y + noise)
         for name, compensate in noisy:
             noisy[name, compensate].append(errors(record, name, compensate))
-    rows = []
+    rows, scatter = [], {}
     for (name, compensate), values in noisy.items():
-        target = cases[name]
         mu, log10, freq, damp = (np.array(v) for v in zip(*values, strict=True))
+        spread = Scatter(mu, cases[name])
+        if not compensate:
+            scatter[name] = spread
         rows.append([name, "on" if compensate else "off",
                      f"{exact[name][0]:+.3f}", f"{exact[name][1]:.2f}",
                      f"{mu.mean():+.3f} ± {mu.std(ddof=1):.3f}",
-                     f"{np.sum(np.abs(mu) <= target)} of {mu.size} (<= {target:g} %)",
+                     f"{spread.within} of {mu.size} (<= {spread.target:g} %)",
                      f"{log10.mean():.2f}", f"{freq.max():.3f}", f"{damp.max():.2f}"])
     return [
         f"#### Noise scatter of the coefficient ({NOISE_REALISATIONS} noise realisations)",
@@ -682,7 +703,7 @@ def noise_scatter(truth: Truth) -> list[str]:
                 "log10, no noise",
                 "mu err with noise [%] (mean ± std)", "realisations within the target",
                 "mean log10(Re/Im)", "max err f [%]", "max err zeta [%]"], rows),
-    ]
+    ], scatter
 
 
 def macx_figure(run: Run, name: str) -> str:
@@ -692,18 +713,28 @@ def macx_figure(run: Run, name: str) -> str:
                                  title=f"{run.name}: MACX identified vs true (paper Fig. 6)"))
 
 
-def paper_knots(x_range: tuple[float, float], gap: float = AXIAL_GAP) -> tuple[float, ...]:
-    """The paper's uneven knots (IV.B): 13 intervals, 10 of them within +-10 % of the gaps.
+def paper_knots(x_range: tuple[float, float], gap: float = AXIAL_GAP, *, near: int = 10,
+                side: str = "both") -> tuple[float, ...]:
+    """The paper's uneven knots: ``near`` equal intervals within +-10 % of the stops.
 
-    Five equal intervals in [0.9 g, 1.1 g] on each side, one interval inside the clearance
-    (containing the equilibrium) and one from each neighbourhood to the measured extreme.
+    IV.B: 13 intervals, 10 of them near the gaps; IV.C: 9 intervals, 6 near. A two-sided
+    clearance (``side`` "both") splits ``near`` between its stops and adds one interval
+    inside the clearance (holding the equilibrium) and one from each neighbourhood to the
+    measured extreme. The paper does not say how IV.C placed them at a one-sided stop
+    ("positive" or "negative"); here all ``near`` intervals go to that stop, one from it
+    to the extreme beyond, and two cover the free side.
     """
     low, high = x_range
-    if not (low < -1.1 * gap and high > 1.1 * gap):
-        raise ValueError(f"the measured range {x_range} does not pass both clearances +-{gap} "
-                         "by 10 %: the paper's knots need contact on both sides")
-    side = np.linspace(0.9 * gap, 1.1 * gap, 6)
-    return (low, *(-side[::-1]), *side, high)
+    signs = {"both": (-1, 1), "positive": (1,), "negative": (-1,)}[side]
+    knots = {low, high}
+    for sign in signs:
+        if not (low < -1.1 * gap if sign < 0 else high > 1.1 * gap):
+            raise ValueError(f"the measured range {x_range} does not pass the stop at "
+                             f"{sign * gap:+g} by 10 %: the paper's knots need contact there")
+        knots.update(sign * np.linspace(0.9 * gap, 1.1 * gap, near // len(signs) + 1))
+    if len(signs) == 1:
+        knots.add((low if signs[0] > 0 else high) / 2)
+    return tuple(sorted(float(k) for k in knots))
 
 
 def averaged_relative(data: Measurement, dof: str, ref: str) -> np.ndarray:
@@ -854,8 +885,12 @@ def with_diagonal(measurement: Measurement, truth: Truth) -> tuple[Measurement, 
                                               output_names=(*modal.output_names, W_DIAGONAL)))
 
 
-def multi_workload(measurement: Measurement, truth: Truth) -> tuple[Run, list[str], dict]:
-    """multi-18: eight splines with automatic knots, 9 intervals each (IV.C)."""
+def multi_workload(measurement: Measurement, truth: Truth,
+                   ) -> tuple[Run, list[str], dict, MultiEvidence]:
+    """multi-18: eight splines with automatic knots, 9 intervals each (IV.C).
+
+    Returns the run, the report lines, the acceptance summary and the
+    :class:`MultiEvidence` of :func:`multi_evidence`."""
     data, truth = with_diagonal(measurement, truth)
     try:  # the paper's i = 50, for the record
         stop_run(data, truth, "", "spline", block_rows=50)
@@ -898,11 +933,12 @@ def multi_workload(measurement: Measurement, truth: Truth) -> tuple[Run, list[st
             title="multi-18: WEMS restoring forces (paper Fig. 12 a-f)", units=MODEL_UNITS,
             warnings=[s.caption for s in run.result.separability])),
     ]
-    lines += ["", *multi_evidence(run, data, truth)]
+    evidence_lines, evidence = multi_evidence(run, data, truth)
+    lines += ["", *evidence_lines]
     summary = {"max_freq_err_pct": run.max_frequency_error,
                "max_damp_err_pct": run.max_damping_error,
                "max_curve_rms_pct": float(max(errors)), "time_s": run.time_s}
-    return run, lines, summary
+    return run, lines, summary, evidence
 
 
 #: Variant of the structure for the separability study: the bracket tip node NC1b 2.5
@@ -986,11 +1022,10 @@ def pair_figure(laws: list[PairLaw]) -> str:
     return _save("fig12g_pair_forces_multi18.png", png_bytes(figure))
 
 
-def pair_lines(run: Run, data: Measurement, each: list[float], clean: Run,
-               clean_data: Measurement) -> list[str]:
-    """Table and figure of :func:`pair_laws` on the measured and noise-free records;
-    ``each`` holds the curve error of every stop of ``run``."""
-    laws, clean_laws = pair_laws(run, data), pair_laws(clean, clean_data)
+def pair_lines(laws: list[PairLaw], clean_laws: list[PairLaw], each: list[float],
+               ) -> list[str]:
+    """Table and figure of the :func:`pair_laws` of the measured and noise-free records;
+    ``each`` holds the curve error of every stop of the measured record."""
     rows = [[f"{law.names[0]} + {law.names[1]}", f"{law.slope:+.3f}",
              f"{law.residual:.3f}", f"{each[i]:.1f}, {each[j]:.1f}",
              f"{law.error_pct:.1f}", f"{free.error_pct:.1f}"]
@@ -1029,11 +1064,17 @@ def pair_lines(run: Run, data: Measurement, each: list[float], clean: Run,
 PAIR_RESIDUAL = 0.05
 
 
-def stop_elements(truth: Truth, form: str) -> list[NonlinearElement]:
-    """The eight stops as splines with automatic knots (9 intervals, IV.C) or as
-    clearances with their true gaps (``form`` "spline" or "clearance")."""
+def stop_elements(data: Measurement, truth: Truth, form: str) -> list[NonlinearElement]:
+    """The eight stops as splines of 9 intervals with automatic knots (``form``
+    "spline") or with the paper's knots, 6 of them within +-10 % of the true clearances
+    (IV.C, "paper"), or as clearances with their true gaps ("clearance")."""
     if form == "spline":
         return [NonlinearElement("spline", e.dof, e.ref, intervals=9) for e in truth.elements]
+    if form == "paper":
+        return [NonlinearElement("spline", e.dof, e.ref, knots=paper_knots(
+                    measured_range(data, e.dof, e.ref),
+                    e.gap or e.gap_positive or e.gap_negative, near=6, side=e.side))
+                for e in truth.elements]
     return [replace(e, coefficients=None) for e in truth.elements]
 
 
@@ -1042,7 +1083,7 @@ def stop_run(data: Measurement, truth: Truth, name: str, form: str, *,
     """multi-18 identified with the stops in ``form`` (:func:`stop_elements`), automatic
     order (noise weighting off for a noise-free record, which has no noise to weight by),
     in z: its results do not depend on rounding (the *Rounding* section)."""
-    settings = settings_for(multi_outputs(), block_rows, stop_elements(truth, form),
+    settings = settings_for(multi_outputs(), block_rows, stop_elements(data, truth, form),
                             (data.input_names[0], W_DIAGONAL), frequency_warping=False)
     return Run(f"multi-18 {name}".rstrip(), data, truth, replace(settings, weighting=weighting))
 
@@ -1055,7 +1096,27 @@ def _percents(values) -> str:
     return ", ".join(f"{v:.1f}" for v in values)
 
 
-def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
+@dataclass(frozen=True)
+class MultiEvidence:
+    """What bounds the multi-18 spline results, as :func:`multi_evidence` measures it.
+
+    Curve errors in % of peak, one per stop; damping errors in %; ``separability`` the
+    u of each spline; ``pair_forces`` the error of each mirror pair that moves together;
+    ``paper_knots_*`` the splines with the paper's knots, placed knowing the clearances.
+    """
+
+    separability: list[float]
+    noise_free_curves: list[float]
+    noise_free_damping: float
+    paper_knots_curves: list[float]
+    paper_knots_damping: float
+    clearance_curves: list[float]
+    clearance_damping: float
+    pair_forces: list[float]
+
+
+def multi_evidence(run: Run, data: Measurement, truth: Truth,
+                   ) -> tuple[list[str], MultiEvidence]:
     """Why the spline configuration of IV.C fails on our model: a dimension count, the
     separability of the stops, the same data identified with the true clearance forms,
     the noise-free record and a variant of the structure without its mirror symmetry."""
@@ -1067,13 +1128,12 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
     best = [best_curve_error(e, t, tuple(span))
             for e, t, span in zip(resolved, truth.elements, spans, strict=True)]
     correlations = mirror_correlations(data, truth.elements)
-    errors = curve_errors(run)
+    errors, known_errors = curve_errors(run), curve_errors(diagnostic)
     rows = [[f"{s.name[len('spline '):]}", f"{s.unexplained:.3f}",
              ", ".join(p.split(" ", 1)[-1] for p in s.partners), f"{c.unexplained:.3f}",
              f"{r:+.3f}", f"{e:.1f}", f"{d:.1f}"]
             for s, c, r, e, d in zip(run.result.separability, diagnostic.result.separability,
-                                     correlations, errors, curve_errors(diagnostic),
-                                     strict=True)]
+                                     correlations, errors, known_errors, strict=True)]
     clean, clean_truth, _ = simulated("multi", 0.0)
     clean_data, clean_truth = with_diagonal(clean, clean_truth)
     clean_splines, clean_known = (stop_run(clean_data, clean_truth, "noise-free", form,
@@ -1083,6 +1143,15 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
     variant_splines, variant_known = (stop_run(variant_data, variant_truth, "variant", form)
                                       for form in ("spline", "clearance"))
     counts = [variant_truth.exceedances[e.name] for e in variant_truth.elements]
+    clean_errors, laws = curve_errors(clean_splines), pair_laws(run, data)
+    paper = stop_run(data, truth, "paper knots", "paper")
+    paper_errors = curve_errors(paper)
+    evidence = MultiEvidence(
+        separability=[s.unexplained for s in run.result.separability],
+        noise_free_curves=clean_errors, noise_free_damping=clean_splines.max_damping_error,
+        paper_knots_curves=paper_errors, paper_knots_damping=paper.max_damping_error,
+        clearance_curves=known_errors, clearance_damping=diagnostic.max_damping_error,
+        pair_forces=[law.error_pct for law in laws if law.residual < PAIR_RESIDUAL])
     return [
         f"Dimension count: the excitation is periodic, so the signal lives on the "
         f"{harmonic} harmonic lines of the band, i.e. {2 * harmonic} real columns of the "
@@ -1116,10 +1185,19 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
         f"Table 8 counts {TABLE_8['NC1_Z']:,} and {TABLE_8['NC2_Z']:,} contacts at NC1-Z "
         f"and NC2-Z, ours {truth.exceedances[truth.elements[4].name]:,} and "
         f"{truth.exceedances[truth.elements[5].name]:,}. This is not noise: on the "
-        f"noise-free record the spline curves are off by {_percents(curve_errors(clean_splines))} "
-        f"% (clearances: {_percents(curve_errors(clean_known))} %).",
+        f"noise-free record the spline curves are off by {_percents(clean_errors)} "
+        f"% (clearances: {_percents(curve_errors(clean_known))} %) and the largest "
+        f"damping error of its kept modes is {clean_splines.max_damping_error:.2f} % "
+        f"(clearances: {clean_known.max_damping_error:.2f} %).",
         "",
-        *pair_lines(run, data, errors, clean_splines, clean_data),
+        f"Nor is it where the knots are: with the paper's own knots for IV.C, placed "
+        f"knowing the clearances (9 intervals, 6 of them within ±10 % of the stops; at a "
+        f"one-sided lateral stop all six at that stop), the splines stay confounded "
+        f"(separability u {_span([x.unexplained for x in paper.result.separability], 3)}), "
+        f"their curves are off by {_percents(paper_errors)} % and the largest damping "
+        f"error is {paper.max_damping_error:.2f} % (order {paper.result.order}).",
+        "",
+        *pair_lines(laws, pair_laws(clean_splines, clean_data), errors),
         "",
         f"Variant without the mirror symmetry in Z: the bracket tip node NC1b 2.5 times "
         f"more flexible axially (`ASYMMETRIC_BRACKET`), the same excitation. Contacts "
@@ -1145,7 +1223,7 @@ def multi_evidence(run: Run, data: Measurement, truth: Truth) -> list[str]:
         f"{diagnostic.max_damping_error:.2f} %; {diagnostic.timings_text()}.",
         "",
         _table(MODAL_HEADER, modal_rows(diagnostic, PAPER_TABLE_9)),
-    ]
+    ], evidence
 
 
 #: Relative size of the rounding-level perturbation of the outputs, and the perturbed
@@ -1189,7 +1267,7 @@ def rounding_study(single: Measurement, single_truth: Truth, multi: Measurement,
          lambda m: spline3_settings(spline_element(m, "automatic")),
          lambda run: curve_error_percent(curve_of(run, 0), nc2)),
         ("multi-18", data, truth, "largest curve error",
-         lambda m: settings_for(multi_outputs(), "auto", stop_elements(truth, "spline"),
+         lambda m: settings_for(multi_outputs(), "auto", stop_elements(m, truth, "spline"),
                                 (data.input_names[0], W_DIAGONAL)),
          lambda run: max(curve_errors(run))),
     ]
@@ -1279,7 +1357,12 @@ LIMITS = [
     "three-output model leaves out the weakly excited 32.6 and 38.3 Hz modes, which still "
     "shape the driving-point FRF *(development)*; orders of 30 and more include them "
     "(-0.05 % without noise) but scatter by +-1 % with noise *(development)*. With noise "
-    "the mean error is about -0.3 % and scatters by 0.3 %.",
+    "the mean error is about -0.3 % and scatters by 0.3 %, and even the true FRF of our "
+    "model misses the target on this record (the acceptance row). Without noise "
+    "weighting this record happens to meet it (the *Other settings* table), but over the "
+    "20 realisations every combination of line set and weighting keeps a mean of -0.17 "
+    "to -0.29 % and a scatter of 0.28 %, at most 5 of 20 within 0.1 % *(development)*: "
+    "choosing the setting that suits one record would be fitting its noise.",
     "- **log10(Re/Im): the identified FRF, not the data.** With the true FRF of our model "
     "the same measured spectra give the log10 of the single-39 evidence line (about 2.4 "
     "with this record's noise, about 4 without noise; over the 20 noise realisations 2.5 "
@@ -1332,7 +1415,8 @@ LIMITS = [
     "0.01 for the axial splines (an error of the fit grows a hundredfold in their "
     "curves) and below 0.05 for all eight, which `identify()` reports as confounded. It "
     "is not noise (the noise-free record gives curves as wrong) and not the "
-    "knots (the best ordinates of the automatic knots are within a few percent). What "
+    "knots (the best ordinates of the automatic knots are within a few percent, and the "
+    "paper's own knots, placed knowing the clearances, give curves as wrong). What "
     "the data do determine, the force each axial mirror pair exerts along the motion it "
     "shares, the identified splines give within a few percent (the *pair force* table); "
     "the lateral pairs move apart exactly where their stops engage, and the paper itself "
@@ -1345,29 +1429,73 @@ LIMITS = [
     "(presumably because a basis that imitates a linear spring also removes part of the "
     "linear response with E_i). With the same data the eight stops as "
     "clearance bases "
-    "meet every target (the diagnostic table), damping of mode 2 included. Retuning "
-    "the reference structure to the paper's asymmetry would change the model that the "
-    "other workloads and the tests are built on; it deserves its own decision. The "
-    "paper's i = 50 is refused: with periodic data it would eliminate every harmonic "
-    "line.",
+    "meet every target (the diagnostic table), damping of mode 2 included. We keep the "
+    "reference structure as tuned (Table 1 modes, Table 3 and 8 regimes): retuning it to "
+    "the paper's asymmetry would not meet these two targets either, since the variant's "
+    "lateral curves and damping stay far off, and it would change the model that the "
+    "other workloads and the tests are built on. The paper's i = 50 is refused: with "
+    "periodic data it would eliminate every harmonic line.",
     "- **Time.** All identifications are within their targets; the decomposition "
     "dominates and scales with (lines x block rows x channels).",
 ]
 """Analysis of the misses; every number it refers to is measured in its section."""
 
 
-def acceptance_rows(summary: dict) -> list[list[str]]:
+def bounds(frf: dict[str, dict], scatter: dict[str, Scatter],
+           multi: MultiEvidence | None) -> dict[tuple[str, str], str]:
+    """What bounds each target that our model's data can miss, in numbers of this run.
+
+    ``frf`` holds the :func:`frf_evidence` of single-39 and single-3, ``scatter`` the
+    :func:`noise_scatter` of both, ``multi`` the :func:`multi_evidence` (None when a
+    workload failed: its bounds are left out).
+    """
+    notes = {}
+    for name, key in (("single-39", "single39"), ("single-3", "single3")):
+        if name in frf:
+            e = frf[name]
+            notes[key, "log10_re_im"] = (
+                f"the true FRF of our model gives {e['log10_true_frf']:.2f} on this record "
+                f"({e['log10_true_frf_clean']:.2f} noise-free); the identified "
+                f"driving-point FRF is {e['frf_error_pct']:.2f} % off (median)")
+        if name in scatter:
+            spread = scatter[name]
+            notes[key, "mu_err_pct"] = (
+                f"noise scatter: {spread.errors.mean():+.3f} ± "
+                f"{spread.errors.std(ddof=1):.3f} % over {spread.errors.size} noise "
+                f"realisations, {spread.within} within the target"
+                + (f"; the true FRF of our model gives "
+                   f"{100 * abs(frf[name]['mu_true_frf_ls'] / AXIAL_ADDED - 1):.3f} % on this "
+                   f"record" if name in frf else ""))
+    if multi is not None:
+        confounded = f"splines confounded (separability u <= {max(multi.separability):.3f})"
+        notes["multi18", "max_curve_rms_pct"] = (
+            f"{confounded}: noise-free record {max(multi.noise_free_curves):.0f} %, the "
+            f"paper's knots (clearances known) {max(multi.paper_knots_curves):.0f} %; the "
+            f"same data with clearance bases {max(multi.clearance_curves):.1f} %; axial "
+            f"mirror-pair forces {_percents(multi.pair_forces)} %")
+        notes["multi18", "max_damp_err_pct"] = (
+            f"{confounded}: noise-free record {multi.noise_free_damping:.2f} %, the "
+            f"paper's knots {multi.paper_knots_damping:.2f} %; the same data with "
+            f"clearance bases {multi.clearance_damping:.2f} %")
+    return notes
+
+
+def acceptance_rows(summary: dict, notes: dict[tuple[str, str], str]) -> list[list[str]]:
+    """Rows of the acceptance table; a missed target carries its note from :func:`bounds`
+    (or points to the analysis)."""
     rows = []
     for workload, targets in TARGETS.items():
         for key, bound in targets.items():
             value = summary[workload][key]
             if value is None:
-                rows.append([workload, key, "failed", "", "**missed**"])
+                rows.append([workload, key, "failed", "", "**missed**", ""])
                 continue
             ok = value >= -bound if bound < 0 else value <= bound
             rows.append([workload, key, f"{value:.4g}",
                          f">= {-bound:g}" if bound < 0 else f"<= {bound:g}",
-                         "met" if ok else "**missed**"])
+                         "met" if ok else "**missed**",
+                         "" if ok else notes.get((workload, key), "see *What limits the "
+                                                                  "results*")])
     return rows
 
 
@@ -1389,20 +1517,27 @@ def main() -> None:
     print(f"data ready in {time.perf_counter() - start:.1f} s "
           f"(single: {single_info}, multi: {multi_info})", flush=True)
 
+    # what bounds the targets, gathered by the workloads for the acceptance table
+    frf: dict[str, dict] = {}
+    scatter: dict[str, Scatter] = {}
+    multi_bounds: MultiEvidence | None = None
+
     def single39() -> tuple[list[str], dict]:
-        run, lines, summary = single_workload(
+        run, lines, summary, frf["single-39"] = single_workload(
             "single-39", single, single_truth, PAPER_TABLE_4,
             {"stabilisation": "fig05_stabilisation_single39.png", "stabilisation_paper": "5",
              "coefficient": "fig07a_mu_single39.png", "coefficient_paper": "7a"})
         return [*lines, macx_figure(run, "fig06_macx_single39.png")], summary
 
     def single3() -> tuple[list[str], dict]:
-        _, lines, summary = single_workload(
+        _, lines, summary, frf["single-3"] = single_workload(
             "single-3", single, single_truth, PAPER_TABLE_6,
             {"stabilisation": "fig08_stabilisation_single3.png", "stabilisation_paper": "8",
              "coefficient": "fig07b_mu_single3.png", "coefficient_paper": "7b"})
+        scatter_lines, spreads = noise_scatter(single_truth)
+        scatter.update(spreads)
         return [*lines, "", *settings_comparison(single, single_truth), "",
-                *order_sweep(single, single_truth), "", *noise_scatter(single_truth)], summary
+                *order_sweep(single, single_truth), "", *scatter_lines], summary
 
     def spline3() -> tuple[list[str], dict]:
         lines, errors = [], {}
@@ -1414,7 +1549,8 @@ def main() -> None:
                  "curve_rms_pct_auto_knots": errors["automatic"]})
 
     def multi18() -> tuple[list[str], dict]:
-        _, lines, summary = multi_workload(multi, multi_truth)
+        nonlocal multi_bounds
+        _, lines, summary, multi_bounds = multi_workload(multi, multi_truth)
         return lines, summary
 
     summary: dict[str, dict] = {}
@@ -1434,12 +1570,14 @@ def main() -> None:
 
     sections += ["## Rounding: which results the data fix", "",
                  *rounding_study(single, single_truth, multi, multi_truth), ""]
-    write_report(sections, summary, single_info, multi_info, single_truth)
+    write_report(sections, summary, bounds(frf, scatter, multi_bounds), single_info,
+                 multi_info, single_truth)
     print(json.dumps(summary))
 
 
-def write_report(sections: list[str], summary: dict, single_info: dict, multi_info: dict,
-                 single_truth: Truth) -> None:
+def write_report(sections: list[str], summary: dict, notes: dict[tuple[str, str], str],
+                 single_info: dict, multi_info: dict, single_truth: Truth) -> None:
+    rows = acceptance_rows(summary, notes)
     header = [
         "# Paper reproduction: FNSI on the SmallSat model (Section IV)",
         "",
@@ -1465,7 +1603,14 @@ def write_report(sections: list[str], summary: dict, single_info: dict, multi_in
         "",
         "## Acceptance",
         "",
-        _table(["workload", "quantity", "ours", "target", ""], acceptance_rows(summary)),
+        _table(["workload", "quantity", "ours", "target", "", "what bounds it (measured "
+                "in the sections below)"], rows),
+        "",
+        f"{sum(row[4] == 'met' for row in rows)} of {len(rows)} targets are met. Each "
+        "missed target's row gives, from this run, what bounds it on these records: an "
+        "oracle that knows part of the truth (the true FRF of our model, the noise-free "
+        "record, the stops' true forms) and what it reaches. *What limits the results* "
+        "below explains each, and what was tried.",
         "",
         "Modal maxima run over every mode the automatic order keeps, as `identify()` "
         "returns them: the physical poles of that order in the band that the next order "
