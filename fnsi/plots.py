@@ -11,6 +11,7 @@ coefficients (lines, basis functions), frequencies in Hz.
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Sequence
 
 import numpy as np
@@ -23,6 +24,8 @@ from fnsi.stabilisation import PoleClass, StabilisationDiagram
 from fnsi.stiffness import StiffnessCurve
 
 DPI = 100
+#: Characters per line of a warning written in a 5-inch stiffness panel (small font).
+WARNING_CHARACTERS = 60
 
 #: Marker, colour, size and legend text of each class, after the paper's Figure 5.
 _POLE_STYLE: dict[PoleClass, tuple[str, str, float, str]] = {
@@ -322,8 +325,12 @@ def plot_stiffness(
         ax.plot(curve.x, curve.force, color="tab:blue", lw=1.2, label="identified",
                 ls="--" if warning else "-")
         if warning:
-            ax.text(0.02, 0.02, warning, transform=ax.transAxes, color="tab:red",
-                    fontsize="small", va="bottom", wrap=True)
+            # wrapped to the panel by hand: matplotlib wraps to the figure, and constrained
+            # layout then shrinks the axes to make room for the overflowing line
+            ax.text(0.02, 0.02, textwrap.fill(warning, WARNING_CHARACTERS),
+                    transform=ax.transAxes, color="tab:red", fontsize="small",
+                    va="bottom", bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+                    in_layout=False)
         element = curve.element
         if element.kind is NonlinearityKind.SPLINE and element.knots:
             knots = np.asarray(element.knots)

@@ -83,6 +83,23 @@ def test_stiffness_plot_with_truth_and_spline_knots():
         plots.plot_stiffness(curves, warnings=["confounded"])
 
 
+def test_stiffness_warnings_keep_the_panels_wide(monkeypatch):
+    # a long warning once squeezed the panels of a 2-column grid to a sliver at each edge
+    # (SmallSat multi-18: 8 % of the figure width); a panel should keep about half of it
+    figures = []
+    monkeypatch.setattr(plots, "png_bytes", figures.append)
+    curves = [stiffness_curve(NonlinearElement("polynomial", f"d{k}", coefficients=(1.0,)),
+                              x=(-2.0, 2.0)) for k in range(4)]
+    warning = ("confounded with spline NC1w_Z-NC1b_Z, spline NC3w_Z-NC3b_Z, spline "
+               "NC4w_Z-NC4b_Z, a linear spring and dashpot at the elements (u = 0.007): "
+               "not to be trusted")
+    plots.plot_stiffness(curves, warnings=[warning, None, warning, warning])
+    figure = figures[0]
+    figure.canvas.draw()
+    widths = [ax.get_position().width for ax in figure.axes if ax.get_visible()]
+    assert len(widths) == 4 and min(widths) > 0.35, widths
+
+
 def test_macx_plot():
     rng = np.random.default_rng(1)
     shapes = rng.normal(size=(5, 8)) + 1j * rng.normal(size=(5, 8))
