@@ -85,7 +85,7 @@ def test_stiffness_plot_with_truth_and_spline_knots():
 
 def test_stiffness_warnings_keep_the_panels_wide(monkeypatch):
     # a long warning once squeezed the panels of a 2-column grid to a sliver at each edge
-    # (SmallSat multi-18: 8 % of the figure width); a panel should keep about half of it
+    # (0.45 % of the figure width each, here); a panel should keep about half of it
     figures = []
     monkeypatch.setattr(plots, "png_bytes", figures.append)
     curves = [stiffness_curve(NonlinearElement("polynomial", f"d{k}", coefficients=(1.0,)),
