@@ -299,10 +299,11 @@ def _groups(lines, driven, frequencies, low, high, odd_design) -> dict[str, np.n
             "above": quiet & (frequencies > high)}
 
 
-def _f_group(power: float, noise: float, dof_signal: float, dof_noise: float) -> LineGroup:
+def _f_group(lines: int, power: float, noise: float, dof_signal: int,
+             dof_noise: int) -> LineGroup:
     """Level and F-test p-value of ``power`` (dof_signal) against ``noise`` (dof_noise)."""
     ratio = power / noise if noise > 0 else np.inf
-    return LineGroup(lines=int(round(dof_signal / 2)), level_db=float(10 * np.log10(ratio)),
+    return LineGroup(lines=lines, level_db=float(10 * np.log10(ratio)),
                      p_value=float(stats.f.sf(ratio, dof_signal, dof_noise)))
 
 
@@ -317,7 +318,7 @@ def _detection_group(Ybar, noise_var, mask, j: int, P: int) -> LineGroup:
         return LineGroup(0, float("nan"), float("nan"))
     power = float(np.sum(np.abs(Ybar[..., j][mask]) ** 2))
     noise = float(np.sum(noise_var[..., j][mask]))
-    return _f_group(power, noise, 2 * n, 2 * n * (P - 1))
+    return _f_group(n, power, noise, 2 * n, 2 * n * (P - 1))
 
 
 def _excited_group(total_var, noise_var, mask, j: int, R: int, P: int) -> LineGroup:
@@ -329,9 +330,8 @@ def _excited_group(total_var, noise_var, mask, j: int, R: int, P: int) -> LineGr
     n = int(keep.sum())
     if n == 0:
         return LineGroup(0, float("nan"), float("nan"))
-    group = _f_group(float(total_var[keep, j].sum()), float(noise_var[keep, j].sum()),
-                     2 * n * (R - 1), 2 * n * R * (P - 1))
-    return LineGroup(n, group.level_db, group.p_value)
+    return _f_group(n, float(total_var[keep, j].sum()), float(noise_var[keep, j].sum()),
+                    2 * n * (R - 1), 2 * n * R * (P - 1))
 
 
 def _strongest(analysis: DistortionAnalysis, group: str) -> ChannelDistortion | None:
