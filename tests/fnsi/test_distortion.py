@@ -12,6 +12,7 @@ from fnsi.distortion import analyse_distortion
 from fnsi.excitation import Excitation, multisine
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
+from fnsi.smallsat import simulate_preset
 
 FS, N, BAND = 256.0, 2048, (3.0, 60.0)  # lines every 0.125 Hz: ~230 odd lines in the band
 REALISATIONS, PERIODS = 4, 4
@@ -104,3 +105,22 @@ def test_one_realisation_says_what_it_cannot_tell(linear_chain):
 def test_the_noise_needs_two_kept_periods(linear_chain):
     with pytest.raises(ValueError, match="at least two periods"):
         analyse_distortion(record(linear_chain, realisations=1), discard_periods=3)
+
+
+@pytest.mark.parametrize("rms, nonlinear", [(100.0, True), (10.0, False)],
+                         ids=["stop-hit", "below-the-clearance"])
+def test_smallsat_single_shows_odd_distortions_only_when_the_stop_is_hit(rms, nonlinear):
+    """The paper's single test with a random-odd multisine: at 100 N the NC2-Z stop is hit
+    (odd distortions at NC2w_Z and NC2b_Z, symmetric law: no even ones); at 10 N it is
+    not, and nothing rises above the noise."""
+    measurement, truth = simulate_preset("single", periods=3, samples_per_period=5000,
+                                         rms=rms, signal="random-odd",
+                                         outputs=("NC2w_Z", "NC2b_Z", "W_Z"))
+    assert (truth.exceedances["clearance NC2w_Z-NC2b_Z"] > 0) is nonlinear
+    analysis = analyse_distortion(measurement)
+    channels = {c.name: c for c in analysis.channels}
+    for name in ("NC2w_Z", "NC2b_Z"):
+        assert channels[name].odd.above_noise is nonlinear, channels[name]
+        if nonlinear:
+            assert channels[name].odd.level_db > 20
+    assert not any(c.even.above_noise for c in analysis.channels)
