@@ -1,0 +1,1 @@
+"""Generalisation benchmark: random structures identified blind (issue 20, linear part)."""
