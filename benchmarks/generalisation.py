@@ -17,7 +17,7 @@ Last output line: one JSON object {"structures", "order_correct_pct", "unsimulab
 "median_identify_s"} ("unsimulable": models with a pole outside the unit circle returned
 without a warning).
 
-Run: ``.venv/bin/python benchmarks/generalisation.py`` (100 cases, seed 20, writes
+Run: ``.venv/bin/python benchmarks/generalisation.py`` (200 cases, seed 20, writes
 benchmarks/results/generalisation.md); ``--smoke`` for the first 30 cases without
 touching the results file. Case k depends only on the seed and k, so a smoke run is
 the first 30 cases of the full one.
@@ -53,7 +53,7 @@ band. Timings measured on a shared, loaded 2-core machine."""
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=20)
-    parser.add_argument("--count", type=int, default=100)
+    parser.add_argument("--count", type=int, default=200)
     parser.add_argument("--smoke", action="store_true",
                         help="first 30 cases only; the table goes to the work directory")
     parser.add_argument("--workdir", type=Path, default=None,

@@ -5,8 +5,10 @@ channel names and the band of the excitation they designed. The library runs wit
 defaults (:class:`fnsi.identification.IdentificationSettings` with only the band given:
 order and block rows ``"auto"``), inside :func:`.blind.blindfold`. The answer records the
 modes reported, the order, the largest discrete-time pole modulus of the model (above 1:
-the model cannot be simulated), the warnings the library raised and the wall time of
-:func:`fnsi.identification.identify`; a refusal or crash is recorded as the answer.
+the model cannot be simulated), the warnings the library raised, the wall time of
+:func:`fnsi.identification.identify`, and the modes of every order of the stabilisation
+diagram (what an explicit order would have returned: the scorer tells a wrong order choice
+from a case that no order fits); a refusal or crash is recorded as the answer.
 """
 
 from __future__ import annotations
@@ -51,13 +53,25 @@ def answer(path: Path) -> dict:
                     "warnings": [str(w.message) for w in caught]}
     elapsed = time.perf_counter() - start
     modal = result.modal
+    diagram = result.stabilisation
     return {"status": "ok", "order": result.order,
             "block_rows": None if result.settings is None else result.settings.block_rows,
-            "modes": [{"frequency_hz": float(f), "damping_ratio": float(z)}
-                      for f, z in zip(modal.frequencies, modal.damping_ratios, strict=True)],
+            "modes": _modes(modal),
             "max_pole_modulus": float(np.max(np.abs(np.linalg.eigvals(result.model.A)),
                                              initial=0.0)),
-            "warnings": [str(w.message) for w in caught], "identify_s": elapsed}
+            "warnings": [str(w.message) for w in caught], "identify_s": elapsed,
+            "diagram": [] if diagram is None else [
+                {"order": order, "modes": _modes(diagram.at(order).modes)}
+                for order in diagram.orders]}
+
+
+def _modes(table) -> list[dict]:
+    """Frequencies [Hz], damping ratios and confirmed flags of a modal table."""
+    confirmed = ([None] * table.n_modes if table.confirmed is None
+                 else [bool(c) for c in table.confirmed])
+    return [{"frequency_hz": float(f), "damping_ratio": float(z), "confirmed": c}
+            for f, z, c in zip(table.frequencies, table.damping_ratios, confirmed,
+                               strict=True)]
 
 
 def run(root: Path, progress: Callable[[str, dict], None] | None = None) -> None:

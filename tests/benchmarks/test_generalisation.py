@@ -130,13 +130,16 @@ def test_score_pairs_close_modes_one_to_one():
          "required": True},
         {"frequency_hz": 10.04, "damping_ratio": 0.02, "power_share": 0.5, "in_band": True,
          "required": True}]}
+    right = [{"frequency_hz": 10.0, "damping_ratio": 0.0201, "confirmed": True},
+             {"frequency_hz": 10.04, "damping_ratio": 0.0199, "confirmed": True}]
+    extra = {"frequency_hz": 15.0, "damping_ratio": 0.05, "confirmed": False}
     one = {"status": "ok", "identify_s": 0.1, "max_pole_modulus": 0.9, "warnings": [],
-           "modes": [{"frequency_hz": 10.02, "damping_ratio": 0.02}]}
+           "modes": [{"frequency_hz": 10.02, "damping_ratio": 0.02, "confirmed": True}],
+           "diagram": [{"order": 2, "modes": []}, {"order": 4, "modes": [*right, extra]}]}
     score = score_case("c", truth, one)
     assert (score.found, score.spurious, score.correct) == (1, 0, False)
-    two = dict(one, modes=[{"frequency_hz": 10.0, "damping_ratio": 0.0201},
-                           {"frequency_hz": 10.04, "damping_ratio": 0.0199},
-                           {"frequency_hz": 15.0, "damping_ratio": 0.05}])
-    score = score_case("c", truth, two)
+    # order 4 is right once its unconfirmed 15 Hz pole is left out
+    assert (score.orders_all, score.orders_confirmed, score.achievable) == ([], [4], True)
+    score = score_case("c", truth, dict(one, modes=[*right, extra]))
     assert (score.found, score.spurious, score.correct) == (2, 1, False)
-    assert score_case("c", truth, dict(two, modes=two["modes"][:2])).correct
+    assert score_case("c", truth, dict(one, modes=right)).correct
