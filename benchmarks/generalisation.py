@@ -20,7 +20,9 @@ without a warning).
 Run: ``.venv/bin/python benchmarks/generalisation.py`` (200 cases, seed 20, writes
 benchmarks/results/generalisation.md); ``--smoke`` for the first 30 cases without
 touching the results file. Case k depends only on the seed and k, so a smoke run is
-the first 30 cases of the full one.
+the first 30 cases of the full one. ``--noise-free`` draws the same cases without
+measurement noise: some order of the diagram must then be correct on every case (100 % on
+seed 20), which checks the generator's truth against its data.
 """
 
 from __future__ import annotations
@@ -56,26 +58,31 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--count", type=int, default=200)
     parser.add_argument("--smoke", action="store_true",
                         help="first 30 cases only; the table goes to the work directory")
+    parser.add_argument("--noise-free", action="store_true",
+                        help="the same cases without measurement noise (checks the "
+                             "generator: some order must then be correct on every case)")
     parser.add_argument("--workdir", type=Path, default=None,
                         help="benchmark directory (default: a fresh temporary one)")
     parser.add_argument("--phase", choices=("all", "generate", "run", "score"), default="all")
     parser.add_argument("--results", type=Path, default=None,
                         help=f"Markdown table (default {RESULTS.relative_to(ROOT)}; the work "
-                             "directory with --smoke)")
+                             "directory with --smoke or --noise-free)")
     args = parser.parse_args(argv)
     count = 30 if args.smoke else args.count
     root = args.workdir or Path(tempfile.mkdtemp(prefix="generalisation-"))
     print(f"benchmark directory {root}", flush=True)
     if args.phase in ("all", "generate"):
-        generate(root, args.seed, count)
-        print(f"generated {count} cases (seed {args.seed})", flush=True)
+        generate(root, args.seed, count, noise_free=args.noise_free)
+        print(f"generated {count} cases (seed {args.seed}"
+              f"{', noise free' if args.noise_free else ''})", flush=True)
     if args.phase in ("all", "run"):
         run(root, lambda case, a: print(
             f"{case}: {a['status']}, order {a.get('order')}, {len(a.get('modes', []))} modes, "
             f"{a['identify_s']:.2f} s", flush=True))
     if args.phase in ("all", "score"):
         scores = score_all(root, lambda message: print(message, flush=True))
-        target = args.results or (root / "generalisation.md" if args.smoke else RESULTS)
+        scratch = args.smoke or args.noise_free
+        target = args.results or (root / "generalisation.md" if scratch else RESULTS)
         target.write_text(report(scores, args.seed, HEADER))
         print(f"table written to {target}")
         print(json.dumps(summary(scores)))

@@ -63,8 +63,17 @@ def _band(rng: np.random.Generator, f: np.ndarray) -> tuple[float, float]:
     return float(low), float(high)
 
 
-def draw_case(seed: np.random.SeedSequence) -> tuple[dict, dict, dict]:
+def draw_case(seed: np.random.SeedSequence, *, noise_free: bool = False,
+              ) -> tuple[dict, dict, dict]:
     """One random case.
+
+    Parameters
+    ----------
+    seed : numpy.random.SeedSequence
+    noise_free : bool
+        The same case without measurement noise (every draw is kept, the noise is scaled
+        to zero): every case must then have an order that finds its modes, which checks
+        the generator's truth against the data.
 
     Returns
     -------
@@ -102,7 +111,7 @@ def draw_case(seed: np.random.SeedSequence) -> tuple[dict, dict, dict]:
                                  replace=False))
     quantity = synthesis.QUANTITIES[int(rng.integers(3))]
     realisations = int(rng.integers(1, 3))
-    noise = log_uniform(rng, 0.001, 0.05)
+    noise = log_uniform(rng, 0.001, 0.05) * (0.0 if noise_free else 1.0)  # same draws
     spectrum = synthesis.multisine(rng, realisations, samples, lines, inputs.size)
     u, y = synthesis.steady_state(structure.M, structure.C, structure.K, spectrum, samples,
                                   lines, fs, sensors, inputs, quantity)
@@ -137,7 +146,7 @@ def _structure_json(structure: Structure, inputs: np.ndarray, sensors: np.ndarra
             "input_dofs": inputs.tolist(), "sensor_dofs": sensors.tolist()}
 
 
-def generate(root, seed: int, count: int) -> list[str]:
+def generate(root, seed: int, count: int, *, noise_free: bool = False) -> list[str]:
     """Write ``count`` cases under ``root`` (phase 1) and seal their truth.
 
     Parameters
@@ -148,6 +157,8 @@ def generate(root, seed: int, count: int) -> list[str]:
         Master seed; the same seed and count give the same files.
     count : int
         Number of cases.
+    noise_free : bool
+        Cases without measurement noise (:func:`draw_case`).
 
     Returns
     -------
@@ -161,7 +172,7 @@ def generate(root, seed: int, count: int) -> list[str]:
     ids, truths = [], {}
     for k, child in enumerate(np.random.SeedSequence(seed).spawn(count)):
         case = f"case{k:04d}"
-        data, _, truth = draw_case(child)
+        data, _, truth = draw_case(child, noise_free=noise_free)
         np.savez(directory / f"{case}.npz", **data)
         ids.append(case)
         truths[case] = truth

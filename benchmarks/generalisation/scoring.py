@@ -214,7 +214,7 @@ GROUPS: tuple[tuple[str, Callable[[dict], str]], ...] = (
     ("DOFs", lambda p: _count_bin(p["dofs"], (2, 5, 9, 13))),
     ("damping", lambda p: p["damping"]),
     ("close modes", lambda p: "yes" if p["close_modes"] else "no"),
-    ("noise", lambda p: _bin(p["noise_pct"], (0.1, 0.5, 2, 5), " %")),
+    ("noise", lambda p: _bin(p["noise_pct"], (0, 0.1, 0.5, 2, 5), " %")),
     ("fs / band edge", lambda p: _bin(p["fs_ratio"], (4, 10, 20, 40))),
     ("output", lambda p: p["quantity"]),
     ("inputs", lambda p: str(p["inputs"])),

@@ -143,3 +143,15 @@ def test_score_pairs_close_modes_one_to_one():
     score = score_case("c", truth, dict(one, modes=[*right, extra]))
     assert (score.found, score.spurious, score.correct) == (2, 1, False)
     assert score_case("c", truth, dict(one, modes=right)).correct
+
+
+def test_noise_is_the_drawn_share_of_each_channel_rms():
+    # the noise-free twin keeps every other draw, so the difference is the noise; the RMS
+    # of >= 768 Gaussian samples is within 10 % of its value (4 standard deviations)
+    seed = np.random.SeedSequence(20).spawn(3)[2]
+    noisy, plan, _ = draw_case(seed)
+    clean, _, _ = draw_case(seed, noise_free=True)
+    for key in ("u", "y"):
+        rms = np.sqrt(np.mean((noisy[key] - clean[key]) ** 2, axis=1))
+        assert np.allclose(rms / np.sqrt(np.mean(clean[key] ** 2, axis=1)),
+                           plan["noise_pct"] / 100, rtol=0.1)
