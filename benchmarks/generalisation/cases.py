@@ -26,6 +26,8 @@ A mode is *required* when its natural frequency is in the band and it carries at
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from benchmarks.generalisation import synthesis
@@ -143,6 +145,7 @@ def draw_case(seed: np.random.SeedSequence, *, noise_free: bool = False,
 def _structure_json(structure: Structure, inputs: np.ndarray, sensors: np.ndarray) -> dict:
     return {"topology": structure.topology, "springs": [list(s) for s in structure.springs],
             "M": structure.M.tolist(), "C": structure.C.tolist(), "K": structure.K.tolist(),
+            "elements": [dataclasses.asdict(e) for e in structure.elements],
             "input_dofs": inputs.tolist(), "sensor_dofs": sensors.tolist()}
 
 

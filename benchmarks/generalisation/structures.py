@@ -6,11 +6,9 @@ inherit the library's assumptions (its simulator, its state-space conventions).
 A structure is n point masses on one axis, linear springs between two masses or from a
 mass to ground, and viscous damping, either proportional (classical normal modes, each
 mode's damping ratio drawn) or not (discrete dashpots mixed in: complex modes).
-Matrices are SI: M [kg], C [N s/m], K [N/m], all (n, n).
-
-The nonlinear half of the benchmark (issue 21) adds elements to a :class:`Structure`
-and a time integrator beside :mod:`.synthesis`; nothing here assumes linearity beyond
-:func:`modes`.
+Matrices are SI: M [kg], C [N s/m], K [N/m], all (n, n). Optional nonlinear
+:class:`Element` s (the hidden effects of issue 21) add restoring forces; a structure with
+elements is simulated by :mod:`.integration`, one without exactly by :mod:`.synthesis`.
 """
 
 from __future__ import annotations
@@ -25,11 +23,70 @@ DAMPING_KINDS = ("proportional", "nonproportional")
 #: Range of every mode's damping ratio [-] (issue 20: 0.5-10 %).
 DAMPING_RANGE = (0.005, 0.10)
 GROUND = -1
+ELEMENT_KINDS = ("cubic", "quadratic", "clearance", "coulomb", "quadratic_damping")
+
+
+@dataclass(frozen=True)
+class Element:
+    """A nonlinear restoring force between DOF ``dof`` and ``ref`` (or ground).
+
+    With x and v the displacement and velocity of ``dof`` relative to ``ref``, the force
+    on ``dof`` (its opposite on ``ref``) is -g(x, v), with g by ``kind``:
+
+    ===================  ==============================================================
+    cubic                k x^3 (k > 0 hardening, k < 0 softening)
+    quadratic            k x^2
+    clearance            k (x - g+) above g+, k (x + g-) below -g-, 0 between; an
+                         infinite gap leaves that side open (a one-sided stop)
+    coulomb              F tanh(v / width), friction smoothed over ``width`` [m/s]
+    quadratic_damping    c v |v|
+    ===================  ==============================================================
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`ELEMENT_KINDS`.
+    dof, ref : int
+        DOFs; ``ref`` is :data:`GROUND` for an element to ground.
+    coefficient : float
+        k [N/m^3, N/m^2, N/m], F [N] or c [N s^2/m^2].
+    gaps : (float, float)
+        (g-, g+) [m] of a clearance, each >= 0 or infinite.
+    width : float
+        Smoothing velocity of Coulomb friction [m/s].
+    """
+
+    kind: str
+    dof: int
+    ref: int
+    coefficient: float
+    gaps: tuple[float, float] = (np.inf, np.inf)
+    width: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ELEMENT_KINDS:
+            raise ValueError(f"element kind must be one of {ELEMENT_KINDS}; got {self.kind!r}")
+        if self.kind == "coulomb" and not self.width > 0:
+            raise ValueError(f"Coulomb friction needs a smoothing width > 0; got {self.width}")
+
+    def g(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Restoring force g(x, v) [N] of the relative motion, same shape as ``x``."""
+        k = self.coefficient
+        if self.kind == "cubic":
+            return k * x**3
+        if self.kind == "quadratic":
+            return k * x**2
+        if self.kind == "coulomb":
+            return k * np.tanh(v / self.width)
+        if self.kind == "quadratic_damping":
+            return k * v * np.abs(v)
+        low, high = self.gaps
+        return k * (np.maximum(x - high, 0.0) + np.minimum(x + low, 0.0))
 
 
 @dataclass(frozen=True)
 class Structure:
-    """A linear lumped structure.
+    """A lumped structure: its linear part and optional nonlinear elements.
 
     Attributes
     ----------
@@ -42,7 +99,10 @@ class Structure:
     springs : tuple of (int, int)
         Spring end DOFs; :data:`GROUND` for a spring to ground.
     M, C, K : ndarray, shape (n, n)
-        Mass [kg], damping [N s/m] and stiffness [N/m] matrices.
+        Mass [kg], damping [N s/m] and stiffness [N/m] matrices of the underlying linear
+        structure.
+    elements : tuple of Element
+        Nonlinear elements (none: a linear structure).
     """
 
     topology: str
@@ -52,6 +112,7 @@ class Structure:
     M: np.ndarray
     C: np.ndarray
     K: np.ndarray
+    elements: tuple[Element, ...] = ()
 
     @property
     def n_dofs(self) -> int:
