@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 from pathlib import Path
@@ -83,7 +84,11 @@ def main(argv: list[str] | None = None) -> None:
         scores = score_all(root, lambda message: print(message, flush=True))
         scratch = args.smoke or args.noise_free
         target = args.results or (root / "generalisation.md" if scratch else RESULTS)
-        target.write_text(report(scores, args.seed, HEADER))
+        blas = ", ".join(f"{name}={os.environ.get(name, '(unset)')}"
+                         for name in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS"))
+        target.write_text(report(scores, args.seed, f"{HEADER}\n\nRun with {blas}. The "
+                                 "automatic order can depend on rounding: compare runs made "
+                                 "with one BLAS setting, on the same case files."))
         print(f"table written to {target}")
         print(json.dumps(summary(scores)))
 
