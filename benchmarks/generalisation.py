@@ -20,9 +20,12 @@ without a warning).
 Run: ``.venv/bin/python benchmarks/generalisation.py`` (200 cases, seed 20, writes
 benchmarks/results/generalisation.md); ``--smoke`` for the first 30 cases without
 touching the results file. Case k depends only on the seed and k, so a smoke run is
-the first 30 cases of the full one. ``--noise-free`` draws the same cases without
-measurement noise: some order of the diagram must then be correct on every case (100 % on
-seed 20), which checks the generator's truth against its data.
+the first 30 cases of the full one. To compare two versions of the library on the same
+files: ``--phase generate --workdir D`` once, then per version a copy of D with
+``--phase run`` and ``--phase score`` (the table goes to the copy). ``--noise-free``
+draws the same cases without measurement noise: some order of the diagram must then be
+correct on every case (100 % on seed 20), which checks the generator's truth against its
+data.
 """
 
 from __future__ import annotations
@@ -66,8 +69,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="benchmark directory (default: a fresh temporary one)")
     parser.add_argument("--phase", choices=("all", "generate", "run", "score"), default="all")
     parser.add_argument("--results", type=Path, default=None,
-                        help=f"Markdown table (default {RESULTS.relative_to(ROOT)}; the work "
-                             "directory with --smoke or --noise-free)")
+                        help=f"Markdown table (default {RESULTS.relative_to(ROOT)} for a full "
+                             "run of all phases, else generalisation.md in the work directory)")
     args = parser.parse_args(argv)
     count = 30 if args.smoke else args.count
     root = args.workdir or Path(tempfile.mkdtemp(prefix="generalisation-"))
@@ -82,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
             f"{a['identify_s']:.2f} s", flush=True))
     if args.phase in ("all", "score"):
         scores = score_all(root, lambda message: print(message, flush=True))
-        scratch = args.smoke or args.noise_free
+        scratch = args.smoke or args.noise_free or args.phase != "all"
         target = args.results or (root / "generalisation.md" if scratch else RESULTS)
         blas = ", ".join(f"{name}={os.environ.get(name, '(unset)')}"
                          for name in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS"))
@@ -94,4 +97,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except ValueError as error:  # a phase out of order or a used directory: say what to do
+        sys.exit(f"error: {error}")
