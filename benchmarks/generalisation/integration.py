@@ -56,10 +56,8 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
 
     Returns
     -------
-    u : ndarray, shape (realisations, samples, m)
-        Forces [N].
-    y : ndarray, shape (realisations, samples, l)
-        Responses in ``quantity`` units.
+    u, y : ndarray
+        Forces and responses of one period, as :func:`.synthesis.steady_state` returns them.
     periods : int
         Largest number of periods integrated over the realisations.
 
