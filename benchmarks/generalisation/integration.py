@@ -1,0 +1,129 @@
+"""Periodic steady state of a structure with nonlinear elements, by time integration.
+
+The benchmark's own integrator for the hidden-effect cases (issue 21), independent of the
+library's Newmark simulator: scipy's adaptive Runge-Kutta (``solve_ivp``, DOP853 by
+default) on the first-order form of M q'' + C q' + K q + sum_e b_e g_e(b_e^T q,
+b_e^T q') = f(t), with f the multisine evaluated exactly (the trigonometric polynomial
+of its lines, no interpolation). Integration starts from the linear steady state and
+runs period after period until the state at the start of two consecutive periods agrees
+within a tolerance: the record is then periodic, as the identification assumes.
+
+Arrays follow :mod:`.synthesis`: one period ``(realisations, samples, channels)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.integrate
+
+from benchmarks.generalisation import synthesis
+from benchmarks.generalisation.structures import GROUND, Structure
+
+
+def restoring(structure: Structure, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+    """Nonlinear restoring forces on the DOFs, sum_e b_e g_e, shape (n,)."""
+    force = np.zeros(structure.n_dofs)
+    for element in structure.elements:
+        x, v = q[element.dof], dq[element.dof]
+        if element.ref != GROUND:
+            x, v = x - q[element.ref], v - dq[element.ref]
+        g = element.g(x, v)
+        force[element.dof] += g
+        if element.ref != GROUND:
+            force[element.ref] -= g
+    return force
+
+
+def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: int,
+                          lines: np.ndarray, fs: float, sensors: np.ndarray,
+                          inputs: np.ndarray, quantity: str, *, tolerance: float = 1e-8,
+                          max_periods: int = 100, method: str = "DOP853",
+                          ) -> tuple[np.ndarray, np.ndarray, int]:
+    """One period of the forces and of the sensors' periodic response.
+
+    Parameters
+    ----------
+    structure : Structure
+    spectrum, samples, lines, fs, sensors, inputs, quantity
+        As in :func:`.synthesis.steady_state`.
+    tolerance : float
+        Largest change of the state at the start of a period, relative to the state's
+        largest value over the period, for the response to count as periodic.
+    max_periods : int
+        Periods integrated before giving up.
+    method : str
+        ``solve_ivp`` method (rtol 1e-10).
+
+    Returns
+    -------
+    u, y : ndarray
+        Forces and responses of one period, as :func:`.synthesis.steady_state` returns them.
+    periods : int
+        Largest number of periods integrated over the realisations.
+
+    Raises
+    ------
+    ValueError
+        When the response is not periodic within ``max_periods`` (a subharmonic or
+        chaotic response, or too little damping).
+    """
+    M, C, K = structure.M, structure.C, structure.K
+    n = structure.n_dofs
+    u = np.fft.irfft(spectrum, n=samples, axis=1)
+    q0 = np.fft.irfft(_linear_spectra(structure, spectrum, samples, lines, fs, inputs),
+                      n=samples, axis=1)[:, 0]  # (realisations, 2n) at t = 0
+    period = samples / fs
+    t = np.arange(samples) / fs
+    omega = 2 * np.pi * lines * fs / samples
+    y = np.zeros((spectrum.shape[0], samples, sensors.size))
+    worst = 0
+    for r in range(spectrum.shape[0]):
+        coefficients = 2 * spectrum[r, lines] / samples  # (lines, m)
+
+        def rhs(time, state, coefficients=coefficients):
+            f = np.zeros(n)
+            f[inputs] = np.real(np.exp(1j * omega * time) @ coefficients)
+            q, dq = state[:n], state[n:]
+            ddq = np.linalg.solve(M, f - C @ dq - K @ q - restoring(structure, q, dq))
+            return np.concatenate([dq, ddq])
+
+        state, periods = q0[r], 0
+        while True:
+            periods += 1
+            solution = scipy.integrate.solve_ivp(rhs, (0.0, period), state, method=method,
+                                                 t_eval=t, rtol=1e-10, atol=1e-14,
+                                                 dense_output=True)
+            end = solution.sol(period)
+            if np.all(np.abs(end - state) <= tolerance * np.abs(solution.y).max(axis=1)):
+                break
+            if periods == max_periods:
+                raise ValueError(f"response not periodic after {max_periods} periods (the "
+                                 "state keeps changing from period to period)")
+            state = end
+        worst = max(worst, periods)
+        y[r] = _output(structure, solution.y, rhs, t, quantity)[:, sensors]
+    return u, y, worst
+
+
+def _linear_spectra(structure: Structure, spectrum: np.ndarray, samples: int,
+                    lines: np.ndarray, fs: float, inputs: np.ndarray) -> np.ndarray:
+    """Half spectra of the linear steady-state displacement and velocity of every DOF,
+    (realisations, samples // 2 + 1, 2n): the integration's starting point."""
+    f = lines * fs / samples
+    H = synthesis.receptance(structure.M, structure.C, structure.K, f)[:, :, inputs]
+    Q = np.zeros((*spectrum.shape[:2], 2 * structure.n_dofs), complex)
+    Q[:, lines, :structure.n_dofs] = np.einsum("kdi,rki->rkd", H, spectrum[:, lines])
+    Q[:, lines, structure.n_dofs:] = (Q[:, lines, :structure.n_dofs]
+                                      * synthesis.derivative(f, "velocity")[None, :, None])
+    return Q
+
+
+def _output(structure: Structure, states: np.ndarray, rhs, t: np.ndarray,
+            quantity: str) -> np.ndarray:
+    """Displacement, velocity or acceleration of every DOF at the samples, (samples, n)."""
+    n = structure.n_dofs
+    if quantity == "displacement":
+        return states[:n].T
+    if quantity == "velocity":
+        return states[n:].T
+    return np.array([rhs(time, state)[n:] for time, state in zip(t, states.T, strict=True)])
