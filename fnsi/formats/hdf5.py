@@ -80,10 +80,10 @@ def _dataset(group: h5py.Group, name: str) -> h5py.Dataset | None:
     if link is None:
         return None
     if not isinstance(link, h5py.HardLink):
-        target = f" to {link.filename}:{link.path}" if isinstance(link, h5py.ExternalLink) \
-            else f" to {link.path}" if isinstance(link, h5py.SoftLink) else ""
-        raise ValueError(f"{name} is a {type(link).__name__}{target}; links are not followed: "
-                         f"store {name} itself in the file")
+        kind = ("an external link to another file" if isinstance(link, h5py.ExternalLink)
+                else "a soft link" if isinstance(link, h5py.SoftLink) else "a user-defined link")
+        raise ValueError(f"{name} is {kind}; links are not followed: store the data of "
+                         f"{name} in the file itself")
     node = group[name]
     if not isinstance(node, h5py.Dataset):
         raise ValueError(f"{name} is a group (a MATLAB struct?), not a dataset; store {name} "

@@ -112,7 +112,7 @@ def _walk(f: io.BufferedReader, endian: str) -> list[_Variable]:
                              f"byte {position}")
         if mdtype == _MI_COMPRESSED:
             head = _inflate_head(f, nbytes)
-            matrix, _, offset = _element(head, 0, endian)
+            matrix, offset = struct.unpack_from(endian + "I", head)[0], 8  # into the matrix
             if matrix != _MI_MATRIX:
                 raise ValueError(f"compressed element at byte {position} holds no matrix")
         else:
