@@ -24,8 +24,10 @@ The identification computes in float64 (largest number ~1.8e308): its nonlinear 
 raise outputs to the power p, spectra sum N samples, and least squares square them
 again, so a value B reaches about (N B^p)^2 N. With B = 1e15 and N = 1e8 samples (the
 decode limit's order) that is 1e114 for a cubic and 1e294 for p = 9, still finite; at
-B = 1e200 the squares are already infinite and every result would be NaN. Physical
-records stay far below: a 1 MN force in micronewtons is 1e12.
+B = 1e200 the squares are already infinite and every result would be NaN (a 5-DOF chain
+with a cubic spring, scaled to 5e12, identifies its modes within 3e-6 and its
+coefficient within 2e-5 of the unscaled record; scaled to 1e200 its eigenvalues do not
+converge). Physical records stay far below: a 1 MN force in micronewtons is 1e12.
 """
 
 

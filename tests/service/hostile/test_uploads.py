@@ -17,8 +17,8 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-import pyuff
 import pytest
+import pyuff
 import scipy.io
 from numpy.lib import format as npy
 
