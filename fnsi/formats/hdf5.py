@@ -25,13 +25,7 @@ import h5py
 import numpy as np
 
 from fnsi.formats.fields import strings
-from fnsi.formats.limits import (
-    FLOAT_BYTES,
-    DecodeLimits,
-    array_bytes,
-    channels_of,
-    is_numeric,
-)
+from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, channels_of, is_numeric
 
 _RECORDS = ("u", "y")
 _SCALARS = ("fs", "periods", "quantity")

@@ -18,13 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.lib import format as npy
 
-from fnsi.formats.limits import (
-    FLOAT_BYTES,
-    DecodeLimits,
-    array_bytes,
-    channels_of,
-    is_numeric,
-)
+from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, channels_of, is_numeric
 from fnsi.measurement import NOT_A_ZIP, Measurement
 
 _RECORDS = ("u", "y")
