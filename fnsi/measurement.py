@@ -20,6 +20,9 @@ QUANTITIES: tuple[str, ...] = get_args(Quantity)
 
 FileLike = str | Path | IO
 
+NPZ_VARIABLES = ("u", "y", "fs", "input_names", "output_names", "periods", "quantity")
+"""The arrays of the canonical NPZ dataset (DESIGN.md section 6)."""
+
 NOT_A_ZIP = ("not an NPZ (zip) file: save the arrays with numpy.savez or "
              "numpy.savez_compressed, or name the file after its real format")
 """Why bytes that are no zip archive are refused as an NPZ dataset."""
@@ -290,7 +293,8 @@ class Measurement:
                 if missing:
                     raise ValueError(f"NPZ dataset lacks required arrays {missing}; it needs "
                                      "u (samples x m), y (samples x l) and fs (scalar, Hz)")
-                fields = {k: data[k] for k in data.files}
+                # only the dataset's own arrays: any other member stays compressed
+                fields = {k: data[k] for k in NPZ_VARIABLES if k in data.files}
         except (OSError, EOFError) as err:
             raise ValueError(f"not a readable NPZ file: {err}") from err
         except ValueError as err:

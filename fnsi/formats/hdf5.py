@@ -18,6 +18,7 @@ reader does not use is touched.
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +57,7 @@ def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool) -> dict[str, 
             if missing:
                 raise ValueError(f"{what} file lacks datasets {missing} at its root; it "
                                  "needs u (samples x m), y (samples x l) and fs (Hz); found "
-                                 f"{sorted(f)[:50]}")
+                                 f"{list(itertools.islice(f, 50))}{_groups_holding(f, missing)}")
     except (OSError, TypeError, KeyError, RuntimeError) as err:  # h5py's errors on bad files
         raise ValueError(f"not a readable {what} file: {err}") from None
     quantity = data.get("quantity")
@@ -83,6 +84,19 @@ def _dataset(group: h5py.Group, name: str) -> h5py.Dataset | None:
         raise ValueError(f"{name} is a group (a MATLAB struct?), not a dataset; store {name} "
                          "as an array at the file's root")
     return node
+
+
+def _groups_holding(f: h5py.File, names: list[str]) -> str:
+    """A hint naming the groups (one level down, hard links only, among the first 1000
+    root links) that hold ``names``."""
+    groups = [key for key in itertools.islice(f, 1000)
+              if isinstance(f.get(key, getlink=True), h5py.HardLink)
+              and isinstance(f[key], h5py.Group)
+              and all(isinstance(f[key].get(n, getlink=True), h5py.HardLink) for n in names)]
+    if not groups:
+        return ""
+    return (f"; groups {groups[:10]} hold {names}: move one record's datasets to the root, "
+            f"e.g. with h5py f.move('{groups[0]}/{names[0]}', '{names[0]}')")
 
 
 def _check_storage(node: h5py.Dataset, name: str) -> None:

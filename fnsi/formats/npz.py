@@ -19,7 +19,7 @@ import numpy as np
 from numpy.lib import format as npy
 
 from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, channels_of, is_numeric
-from fnsi.measurement import NOT_A_ZIP, Measurement
+from fnsi.measurement import NOT_A_ZIP, NPZ_VARIABLES, Measurement
 
 _RECORDS = ("u", "y")
 _SCALARS = ("fs", "periods")
@@ -43,7 +43,8 @@ def read_fields(path: Path, limits: DecodeLimits) -> dict[str, Any]:
                          "again" if started else NOT_A_ZIP)
     try:
         with zipfile.ZipFile(path) as archive:
-            headers = {name: _header(archive, name) for name in _members(archive)}
+            headers = {name: _header(archive, member, name)
+                       for name, member in _members(archive).items()}
         _check(headers, limits)
         measurement = Measurement.from_npz(path)
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as err:
@@ -55,22 +56,24 @@ def read_fields(path: Path, limits: DecodeLimits) -> dict[str, Any]:
             "quantity": measurement.quantity}
 
 
-def _members(archive: zipfile.ZipFile) -> list[str]:
-    """The variables this reader uses that the archive holds."""
-    present = {name.removesuffix(".npy") for name in archive.namelist()}
-    return [name for name in (*_RECORDS, *_SCALARS, *_TEXT) if name in present]
+def _members(archive: zipfile.ZipFile) -> dict[str, str]:
+    """Member of each variable this reader uses that the archive holds (``u.npy`` or
+    ``u``, as numpy.load names them)."""
+    present = {member.removesuffix(".npy"): member for member in archive.namelist()}
+    return {name: present[name] for name in NPZ_VARIABLES if name in present}
 
 
-def _header(archive: zipfile.ZipFile, name: str) -> tuple[tuple[int, ...], np.dtype]:
+def _header(archive: zipfile.ZipFile, member: str,
+            name: str) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype from a member's ``.npy`` header, decompressing only the header."""
-    info = archive.getinfo(f"{name}.npy")
+    info = archive.getinfo(member)
     with archive.open(info) as stream:
         try:
             version = npy.read_magic(stream)
             reader = {(1, 0): npy.read_array_header_1_0, (2, 0): npy.read_array_header_2_0}
             shape, _, dtype = reader[version](stream, max_header_size=10_000)
         except (ValueError, KeyError) as err:
-            raise ValueError(f"member {name}.npy has no valid .npy header ({err}); save the "
+            raise ValueError(f"member {member} has no valid .npy header ({err}); save the "
                              "arrays with numpy.savez") from None
         if dtype.hasobject:
             raise ValueError(f"{name} is an object array; NPZ object arrays are refused for "

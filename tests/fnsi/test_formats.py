@@ -3,6 +3,8 @@ limits that hold when a header understates its data, links kept inside HDF5 file
 
 from __future__ import annotations
 
+import tracemalloc
+
 import h5py
 import numpy as np
 import pytest
@@ -60,3 +62,29 @@ def test_channel_cap_is_checked_on_the_csv_header(tmp_path):
         read_measurement(path, "csv", ReadOptions(fs=1.0, inputs=("c0",)),
                          DecodeLimits(max_channels=10))
     assert refused.value.limit_name == "max_channels"
+
+
+def test_npz_members_the_dataset_does_not_use_stay_compressed(tmp_path):
+    """An extra member of 160 MB of compressed zeros is never decoded: the read allocates
+    about the record (48 kB of samples), nowhere near the member."""
+    path = tmp_path / "r.npz"
+    np.savez_compressed(path, u=REC.u, y=REC.y, fs=np.float64(REC.fs),
+                        junk=np.zeros(20_000_000))
+    tracemalloc.start()
+    try:
+        measurement, _ = read_measurement(path, "npz")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(measurement.u[0], REC.u)
+    assert peak < 10 * 2**20, peak
+
+
+def test_hdf5_data_in_a_group_get_a_hint(tmp_path):
+    path = formats.write_h5(REC, tmp_path / "r.h5")
+    with h5py.File(path, "r+") as f:
+        f.create_group("run1")
+        for name in ("u", "y"):
+            f.move(name, f"run1/{name}")
+    with pytest.raises(ValueError, match=r"groups \['run1'\] hold \['u', 'y'\].*f.move"):
+        read_measurement(path, "h5")
