@@ -60,10 +60,11 @@ def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool) -> dict[str, 
                                  f"{list(itertools.islice(f, 50))}{_groups_holding(f, missing)}")
     except (OSError, TypeError, KeyError, RuntimeError) as err:  # h5py's errors on bad files
         raise ValueError(f"not a readable {what} file: {err}") from None
-    quantity = data.get("quantity")
+    quantity = None if data.get("quantity") is None else np.ravel(data["quantity"])[0]
     return {"u": np.asarray(data["u"], dtype=float), "y": np.asarray(data["y"], dtype=float),
             "fs": data.get("fs"), "periods": data.get("periods"),
-            "quantity": None if quantity is None else str(np.ravel(quantity)[0]).strip(),
+            "quantity": None if quantity is None else (
+                quantity.decode() if isinstance(quantity, bytes) else str(quantity)).strip(),
             "input_names": strings(data.get("input_names"), "input_names"),
             "output_names": strings(data.get("output_names"), "output_names")}
 
