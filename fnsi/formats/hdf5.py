@@ -25,7 +25,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from fnsi.formats.fields import strings
+from fnsi.formats.fields import scalar, strings
 from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, channels_of, is_numeric
 
 _RECORDS = ("u", "y")
@@ -60,7 +60,7 @@ def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool) -> dict[str, 
                                  f"{list(itertools.islice(f, 50))}{_groups_holding(f, missing)}")
     except (OSError, TypeError, KeyError, RuntimeError) as err:  # h5py's errors on bad files
         raise ValueError(f"not a readable {what} file: {err}") from None
-    quantity = None if data.get("quantity") is None else np.ravel(data["quantity"])[0]
+    quantity = None if data.get("quantity") is None else scalar(data["quantity"], "quantity")
     return {"u": np.asarray(data["u"], dtype=float), "y": np.asarray(data["y"], dtype=float),
             "fs": data.get("fs"), "periods": data.get("periods"),
             "quantity": None if quantity is None else (
