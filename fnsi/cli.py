@@ -37,6 +37,16 @@ def _channels(text: str | None) -> tuple[str, ...] | None:
     return tuple(name.strip() for name in text.split(",") if name.strip()) if text else None
 
 
+def _read(path: str, args: argparse.Namespace):
+    """The measurement in ``path``, any format, read as the service reads uploads."""
+    from fnsi.formats import ReadOptions, format_of, read_measurement
+
+    options = ReadOptions(fs=args.fs, inputs=_channels(args.inputs), periods=args.periods,
+                          quantity=args.quantity)
+    measurement, _ = read_measurement(Path(path), format_of(path, args.format), options)
+    return measurement
+
+
 def _elements(args: argparse.Namespace) -> tuple:
     from fnsi.nonlinear import NonlinearElement
 
@@ -68,9 +78,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from fnsi.measurement import Measurement
-
-    m = Measurement.from_npz(args.dataset)
+    m = _read(args.dataset, args)
     print(json.dumps({"inputs": list(m.input_names), "outputs": list(m.output_names),
                       "fs": m.fs, "quantity": m.quantity, "realisations": m.n_realisations,
                       "samples": m.n_samples, "periods": m.periods,
@@ -112,10 +120,9 @@ def _pair(text: str) -> tuple[str, str]:
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from fnsi.identification import identify
-    from fnsi.measurement import Measurement
     from fnsi.report import identification_report
 
-    measurement = Measurement.from_npz(args.dataset)
+    measurement = _read(args.dataset, args)
     settings = _identification_settings(args)
     result = identify(measurement, settings, progress=_progress)
     report = identification_report(result, settings, measurement, progress=_progress)
@@ -159,24 +166,40 @@ def build_parser() -> argparse.ArgumentParser:
                           help="output noise RMS in %% of the reference channel's RMS")
     simulate.set_defaults(run=_cmd_simulate)
 
-    info = commands.add_parser("info", help="summarise a canonical NPZ dataset")
+    info = commands.add_parser("info", help="summarise a dataset (npz, csv, mat, h5, uff)")
     info.add_argument("dataset")
+    info.add_argument("--inputs", help="comma-separated input channels (a CSV needs them)")
+    _add_read_options(info)
     info.set_defaults(run=_cmd_info)
 
     ident = commands.add_parser(
         "identify", help="identify a dataset with FNSI and write result.json, model.npz, PNGs"
     )
-    ident.add_argument("dataset", help="canonical NPZ dataset")
+    ident.add_argument("dataset", help="dataset file (npz, csv, mat, h5, uff)")
     ident.add_argument("-o", "--output", required=True, help="folder for the artefacts")
     _add_identification_options(ident)
+    _add_read_options(ident)
     ident.set_defaults(run=_cmd_identify)
 
     _add_study_commands(commands)
     return parser
 
 
+def _add_read_options(parser: argparse.ArgumentParser) -> None:
+    """What completes or overrides a dataset file (fnsi.formats.ReadOptions)."""
+    parser.add_argument("--format", help="npz, csv, mat, h5 or uff (default: from the "
+                        "extension)")
+    parser.add_argument("--fs", type=float, help="sampling rate [Hz] (a CSV needs it)")
+    parser.add_argument("--periods", type=int,
+                        help="excitation periods per record (default: the file's, else "
+                        "detected)")
+    parser.add_argument("--quantity", help="displacement, velocity or acceleration: what the "
+                        "outputs measure (default: the file's)")
+
+
 def _add_identification_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--inputs", help="comma-separated input names (default: all)")
+    parser.add_argument("--inputs", help="comma-separated input names (default: all; the "
+                        "input columns of a CSV)")
     parser.add_argument("--outputs", help="comma-separated output names (default: all)")
     parser.add_argument("--band", nargs=2, type=float, default=(5.0, 50.0),
                         metavar=("LOW_HZ", "HIGH_HZ"))
@@ -227,7 +250,6 @@ def _save_study(study, folder: Path, figures: dict[str, bytes]) -> None:
 
 
 def _cmd_study_create(args: argparse.Namespace) -> int:
-    from fnsi.measurement import Measurement
     from fnsi.study import Study
     from fnsi.study_plots import study_figures
 
@@ -235,8 +257,8 @@ def _cmd_study_create(args: argparse.Namespace) -> int:
     if (folder / "study.json").exists():
         raise ValueError(f"{folder} already holds a study; choose another folder or add a "
                          f"revision with 'fnsi study revise {folder}'")
-    study = Study.create(Measurement.from_npz(args.estimation),
-                         Measurement.from_npz(args.validation), _identification_settings(args),
+    study = Study.create(_read(args.estimation, args), _read(args.validation, args),
+                         _identification_settings(args),
                          connections=[_pair(text) for text in args.connection],
                          name=args.name, note=args.note, progress=_progress)
     print(file=sys.stderr)
@@ -326,10 +348,11 @@ def _add_study_commands(commands) -> None:
 
     create = actions.add_parser(
         "create", help="identify a starting model (revision 0) and validate it")
-    create.add_argument("estimation", help="canonical NPZ dataset to identify on")
-    create.add_argument("validation", help="canonical NPZ dataset of the same set-up")
+    create.add_argument("estimation", help="dataset file to identify on (any format)")
+    create.add_argument("validation", help="dataset file of the same set-up")
     create.add_argument("-o", "--output", required=True, help="folder to keep the study in")
     _add_identification_options(create)
+    _add_read_options(create)
     create.add_argument("--connection", action="append", default=[], metavar="OUT_A,OUT_B",
                         help="two outputs a physical element could join (repeatable)")
     create.add_argument("--name", default="", help="free label")

@@ -8,7 +8,7 @@ Array convention: ``(realisations, samples, channels)``.
 from __future__ import annotations
 
 import csv
-import io
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Literal, get_args
@@ -19,6 +19,13 @@ Quantity = Literal["displacement", "velocity", "acceleration"]
 QUANTITIES: tuple[str, ...] = get_args(Quantity)
 
 FileLike = str | Path | IO
+
+NPZ_VARIABLES = ("u", "y", "fs", "input_names", "output_names", "periods", "quantity")
+"""The arrays of the canonical NPZ dataset (DESIGN.md section 6)."""
+
+NOT_A_ZIP = ("not an NPZ (zip) file: save the arrays with numpy.savez or "
+             "numpy.savez_compressed, or name the file after its real format")
+"""Why bytes that are no zip archive are refused as an NPZ dataset."""
 
 
 def _as_record(array: np.ndarray, name: str) -> np.ndarray:
@@ -277,6 +284,8 @@ class Measurement:
 
         Arrays ``u`` and ``y`` (2-D samples x channels, 1-D, or 3-D with realisations first),
         scalar ``fs``; optional ``input_names``, ``output_names``, ``periods``, ``quantity``.
+        Files from elsewhere go through :func:`fnsi.formats.read_measurement`, which checks
+        their sizes before decoding.
         """
         try:
             with np.load(file, allow_pickle=False) as data:
@@ -284,20 +293,24 @@ class Measurement:
                 if missing:
                     raise ValueError(f"NPZ dataset lacks required arrays {missing}; it needs "
                                      "u (samples x m), y (samples x l) and fs (scalar, Hz)")
-                fields = {k: data[k] for k in data.files}
+                # only the dataset's own arrays: any other member stays compressed
+                fields = {k: data[k] for k in NPZ_VARIABLES if k in data.files}
         except (OSError, EOFError) as err:
             raise ValueError(f"not a readable NPZ file: {err}") from err
         except ValueError as err:
-            if "pickle" in str(err).lower():
-                raise ValueError("NPZ contains object arrays; store names as unicode arrays "
-                                 "(object arrays are refused for safety)") from err
-            raise
-        fs = np.asarray(fields["fs"])
-        if fs.size != 1:
-            raise ValueError(f"fs must be a scalar sampling rate in Hz; got shape {fs.shape}")
+            if "pickle" not in str(err).lower():
+                raise
+            if not zipfile.is_zipfile(file):  # np.load takes other bytes for a pickle
+                raise ValueError(NOT_A_ZIP) from None
+            raise ValueError("NPZ contains object arrays; store names as unicode arrays "
+                             "(object arrays are refused for safety)") from err
+        fs, periods = (np.asarray(fields.get(k, 1)) for k in ("fs", "periods"))
+        for name, value in (("fs", fs), ("periods", periods)):
+            if value.size != 1:
+                raise ValueError(f"{name} must be a scalar; got an array of shape "
+                                 f"{value.shape}")
         quantity = str(fields["quantity"]) if "quantity" in fields else "displacement"
-        periods = int(fields["periods"]) if "periods" in fields else 1
-        return cls.from_arrays(fields["u"], fields["y"], float(fs), periods=periods,
+        return cls.from_arrays(fields["u"], fields["y"], float(fs), periods=periods.item(),
                                input_names=fields.get("input_names"),
                                output_names=fields.get("output_names"), quantity=quantity)
 
@@ -315,10 +328,13 @@ class Measurement:
                  quantity: str = "displacement") -> Measurement:
         """Read a CSV whose header names the channels, one sample per row.
 
+        Linear in the file's size: the body is parsed by numpy from the open file, and
+        names are looked up in dictionaries.
+
         Parameters
         ----------
         file : path or text file
-            Comma-separated, first row channel names.
+            Comma-separated, first row channel names; UTF-8.
         fs : float
             Sampling rate [Hz].
         inputs : sequence of str
@@ -328,29 +344,31 @@ class Measurement:
         periods, quantity
             As in :meth:`from_arrays`.
         """
-        text = Path(file).read_text() if isinstance(file, str | Path) else file.read()
-        if isinstance(text, bytes):
-            text = text.decode()
-        header = next(csv.reader(io.StringIO(text)), None)
+        if isinstance(file, str | Path):
+            with open(file, encoding="utf-8", newline="") as f:
+                return cls.from_csv(f, fs=fs, inputs=inputs, outputs=outputs, periods=periods,
+                                    quantity=quantity)
+        header = [h.strip() for h in next(csv.reader([file.readline()]), [])]
         if not header:
             raise ValueError("CSV is empty; the first row must name the channels")
-        header = [h.strip() for h in header]
-        inputs = [inputs] if isinstance(inputs, str) else list(inputs)
-        if outputs is None:
-            outputs = [h for k, h in enumerate(header) if h not in inputs or header.index(h) != k]
-        unknown = [n for n in (*inputs, *outputs) if n not in header]
-        if unknown:
-            raise ValueError(f"CSV has no column(s) {unknown}; header is {header}")
-        try:
-            data = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
-        except ValueError as err:
-            raise ValueError(f"CSV body must be numeric: {err}") from err
-        if data.shape[1] != len(header):
-            raise ValueError(f"CSV rows have {data.shape[1]} values for {len(header)} header names")
         # a name may head two columns (force and response at one DOF, as to_csv writes
         # them): inputs take the first such column, outputs the last
         first = {h: k for k, h in reversed(list(enumerate(header)))}
         last = {h: k for k, h in enumerate(header)}
+        inputs = [inputs] if isinstance(inputs, str) else list(inputs)
+        if outputs is None:
+            taken = {first[n] for n in inputs if n in first}
+            outputs = [h for k, h in enumerate(header) if k not in taken]
+        unknown = [n for n in (*inputs, *outputs) if n not in first]
+        if unknown:
+            raise ValueError(f"CSV has no column(s) {unknown[:20]}; header is "
+                             f"{header[:50]}{' ...' if len(header) > 50 else ''}")
+        try:
+            data = np.loadtxt(file, delimiter=",", ndmin=2)
+        except ValueError as err:
+            raise ValueError(f"CSV body must be numeric: {err}") from err
+        if data.shape[1] != len(header):
+            raise ValueError(f"CSV rows have {data.shape[1]} values for {len(header)} header names")
         u = data[:, [first[n] for n in inputs]]
         y = data[:, [last[n] for n in outputs]]
         return cls.from_arrays(u, y, fs, input_names=inputs, output_names=outputs, periods=periods,

@@ -79,6 +79,24 @@ def snr_db(x: np.ndarray, periods: int) -> np.ndarray | None:
     return ratio
 
 
+def channel_rms(x: np.ndarray) -> np.ndarray:
+    """Root mean square of each channel, finite for every finite record.
+
+    Parameters
+    ----------
+    x : ndarray, shape (realisations, samples, channels)
+
+    Returns
+    -------
+    ndarray, shape (channels,)
+        sqrt(mean(x^2)), computed as peak * sqrt(mean((x / peak)^2)) so that squares of
+        samples beyond 1e154 do not overflow to infinity.
+    """
+    peak = np.max(np.abs(x), axis=(0, 1))
+    scale = np.where(peak > 0, peak, 1.0)
+    return scale * np.sqrt(np.mean((x / scale) ** 2, axis=(0, 1)))
+
+
 def summarize(measurement: Measurement, periods_source: str) -> dict:
     """JSON summary of a measurement, as returned by the dataset routes.
 
@@ -95,7 +113,7 @@ def summarize(measurement: Measurement, periods_source: str) -> dict:
         ("input", measurement.u, measurement.input_names),
         ("output", measurement.y, measurement.output_names),
     ):
-        rms = np.sqrt(np.mean(x**2, axis=(0, 1)))
+        rms = channel_rms(x)
         snr = snr_db(x, measurement.periods)
         for k, name in enumerate(names):
             value = None if snr is None or not np.isfinite(snr[k]) else round(float(snr[k]), 2)

@@ -94,6 +94,17 @@ class Settings(BaseSettings):
         """``"celery"`` with a broker, else ``"embedded"``."""
         return "celery" if self.broker_url else "embedded"
 
+    # -- issue 19, hostile uploads: what an upload may decode to (fnsi.formats.DecodeLimits)
+    max_decoded_bytes: int = Field(
+        512 * 1024**2, gt=0, description="Largest decoded dataset [bytes], samples counted as "
+        "float64, computed from the file's headers before decoding (compressed uploads can "
+        "decode a thousandfold); beyond it an upload is refused with 413. 512 MiB holds the "
+        "paper's SmallSat record (40 channels x 240,000 samples, 77 MB) six times over; reading, "
+        "summarising and storing a 500 MiB record peaked at 0.96 GiB.")
+    max_channels: int = Field(
+        1024, gt=0, description="Most channels (inputs plus outputs) of an uploaded dataset; "
+        "beyond it an upload is refused with 413 before its samples are parsed.")
+
 
 @lru_cache
 def get_settings() -> Settings:

@@ -10,6 +10,7 @@ from fastapi import APIRouter, File, Form, Query, UploadFile
 from fastapi.responses import FileResponse, Response
 from pydantic import ValidationError
 
+from fnsi.formats import DecodeLimitError, DecodeLimits, ReadOptions, format_of, read_measurement
 from service.deps import ApiKeyDep, OwnDatasetDep, SettingsDep, StoreDep
 from service.pagination import (
     PageCursor,
@@ -19,8 +20,13 @@ from service.pagination import (
     split_page,
 )
 from service.problems import ERROR_RESPONSES, ProblemError
-from service.readers import ReadOptions, format_of, read_measurement
-from service.schemas.datasets import Dataset, DatasetPage, DownloadFormat, UploadMeta
+from service.schemas.datasets import (
+    Dataset,
+    DatasetListItem,
+    DatasetPage,
+    DownloadFormat,
+    UploadMeta,
+)
 from service.store import DatasetRecord, Store
 
 router = APIRouter(prefix="/v1/datasets", tags=["datasets"], responses=ERROR_RESPONSES)
@@ -28,10 +34,24 @@ router = APIRouter(prefix="/v1/datasets", tags=["datasets"], responses=ERROR_RES
 _CHUNK = 1024 * 1024
 
 
+def _described(record: DatasetRecord) -> dict:
+    """Every field the dataset views take from a stored record."""
+    return {"id": record.id, "name": record.name, "created_at": record.created_at,
+            "size_bytes": record.size_bytes, "source_job": record.source_job,
+            "n_inputs": len(record.summary["inputs"]),
+            "n_outputs": len(record.summary["outputs"]), **record.summary}
+
+
 def dataset_view(record: DatasetRecord) -> Dataset:
     """Public view of a stored dataset."""
-    return Dataset(id=record.id, name=record.name, created_at=record.created_at,
-                   size_bytes=record.size_bytes, source_job=record.source_job, **record.summary)
+    return Dataset(**_described(record))
+
+
+def dataset_item(record: DatasetRecord) -> DatasetListItem:
+    """Listing view of a stored dataset: its shape and channel counts, not its channels
+    (a page stays small whatever the datasets hold)."""
+    return DatasetListItem(**{k: v for k, v in _described(record).items()
+                              if k in DatasetListItem.model_fields})
 
 
 def _parse_meta(meta: str | None) -> UploadMeta:
@@ -87,7 +107,7 @@ def create_dataset(
     try:
         fmt = format_of(file.filename or "", options.format)
     except ValueError as err:
-        raise ProblemError(422, str(err)) from None
+        raise ProblemError(422, f"{err} (the upload's meta.format)") from None
     name = options.name or file.filename or f"upload.{fmt}"
     raw_digest, path = _spool(file, store, settings.max_upload_bytes)
     try:
@@ -98,8 +118,12 @@ def create_dataset(
             read = ReadOptions(fs=options.fs, periods=options.periods, quantity=options.quantity,
                                inputs=tuple(options.inputs) if options.inputs else None,
                                outputs=tuple(options.outputs) if options.outputs else None)
+            limits = DecodeLimits(settings.max_decoded_bytes, settings.max_channels)
             try:
-                measurement, periods_source = read_measurement(path, fmt, read)
+                measurement, periods_source = read_measurement(path, fmt, read, limits)
+            except DecodeLimitError as err:
+                raise ProblemError(413, f"{err} (FNSI_{err.limit_name.upper()} = "
+                                   f"{err.limit})") from None
             except ValueError as err:
                 raise ProblemError(422, f"not a valid {fmt} dataset: {err}") from None
             record = store.put_measurement(measurement, owner=owner, name=name,
@@ -112,11 +136,12 @@ def create_dataset(
 @router.get("", response_model=DatasetPage, summary="List datasets")
 def list_datasets(store: StoreDep, owner: ApiKeyDep, limit: PageLimit = 50,
                   cursor: PageCursor = None) -> DatasetPage:
-    """The caller's datasets (uploaded and simulated), newest first, one page at a time."""
+    """The caller's datasets (uploaded and simulated), newest first, one page at a time;
+    each with its channel counts (GET one dataset for its channels)."""
     before = cursor_position(cursor, "dataset", sequence_number)
     records = store.list_datasets(owner, before_seq=before, limit=limit + 1)
     page, next_cursor = split_page(records, limit, "dataset", lambda r: str(r.seq))
-    return DatasetPage(items=[dataset_view(r) for r in page], next_cursor=next_cursor)
+    return DatasetPage(items=[dataset_item(r) for r in page], next_cursor=next_cursor)
 
 
 @router.get("/{dataset_id}", response_model=Dataset, summary="Get a dataset's summary")

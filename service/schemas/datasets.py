@@ -69,8 +69,8 @@ class ChannelSummary(BaseModel):
         "a noise-free channel.", examples=[46.2])
 
 
-class Dataset(BaseModel):
-    """A stored dataset and what it contains."""
+class DatasetListItem(BaseModel):
+    """A stored dataset as listed: its shape, without its channels."""
 
     id: str = Field(description="Dataset id.", examples=["ds_5f1c0e2a9b7d4c3e8a10"])
     name: str = Field(description="Label (file name unless given).", examples=["run12.npz"])
@@ -85,6 +85,13 @@ class Dataset(BaseModel):
         description="Whether the number of periods was given or detected from the input.")
     period_length: StrictInt = Field(description="Samples per period.", examples=[30000])
     quantity: Quantity = Field(description="What the outputs measure.")
+    n_inputs: StrictInt = Field(description="Number of input channels.", examples=[1])
+    n_outputs: StrictInt = Field(description="Number of output channels.", examples=[39])
+
+
+class Dataset(DatasetListItem):
+    """A stored dataset and what it contains."""
+
     inputs: list[str] = Field(description="Input channel names.", examples=[["force"]])
     outputs: list[str] = Field(description="Output channel names.", examples=[["NC2w_Z"]])
     channels: list[ChannelSummary] = Field(description="Per-channel statistics.")
@@ -93,5 +100,6 @@ class Dataset(BaseModel):
 class DatasetPage(BaseModel):
     """One page of datasets, newest first."""
 
-    items: list[Dataset] = Field(description="Datasets of this page.")
+    items: list[DatasetListItem] = Field(
+        description="Datasets of this page, with channel counts; GET one for its channels.")
     next_cursor: NextCursor = None

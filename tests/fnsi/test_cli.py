@@ -11,12 +11,15 @@ from __future__ import annotations
 import json
 import re
 
+import h5py
+import numpy as np
 import pytest
 
 from fnsi.cli import main
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from tests.fnsi.test_diagnosis import REDUCTION, chain, measure
+from tests.service import formats
 
 PNG = b"\x89PNG\r\n\x1a\n"
 HIDDEN = NonlinearElement("clearance", "x4", "x5", gap_negative=0.002, gap_positive=0.001,
@@ -141,3 +144,39 @@ def test_identify_with_and_without_frequency_warping(records, tmp_path, capsys, 
     assert result["settings"]["frequency_warping"] is warping
     # a wide band: either variable identifies the stop (observed 0.10 % in z, 0.43 % in w)
     assert result["coefficients"][0]["mean_real"] == pytest.approx(1e4, rel=0.01)
+
+
+# Every format through `fnsi info`, read by the same code as the service's uploads; the
+# record of tests.service.formats: 1 kHz, 4 periods of 500 samples, force -> 2 outputs.
+FILES = {
+    "csv": (lambda d: formats.write_csv(formats.make_record(), d / "r.csv"),
+            ["--fs", "1000", "--inputs", "force"]),
+    "mat-v5": (lambda d: formats.write_mat_v5(formats.make_record(), d / "r.mat"), []),
+    "mat-v7.3": (lambda d: formats.write_mat_v73(formats.make_record(), d / "r.mat"), []),
+    "h5": (lambda d: formats.write_h5(formats.make_record(), d / "r.h5"), []),
+    "uff": (lambda d: formats.write_uff(formats.make_record(), d / "r.uff", binary=True), []),
+}
+
+
+@pytest.mark.parametrize("kind", list(FILES))
+def test_info_reads_every_format(kind, tmp_path, capsys):
+    write, options = FILES[kind]
+    code, out, err = run(capsys, "info", write(tmp_path), *options)
+    assert code == 0, err
+    summary = json.loads(out)
+    assert (summary["inputs"], summary["outputs"]) == (["force"], ["NC2w_Z", "NC2b_Z"])
+    assert (summary["fs"], summary["samples"], summary["periods"]) == (1000.0, 2000, 4)
+
+
+def test_info_refuses_what_the_service_refuses(tmp_path, capsys):
+    """The CLI's errors are the library's: a CSV without its rate, an HDF5 dataset stored
+    in a file outside it."""
+    code, _, err = run(capsys, "info", FILES["csv"][0](tmp_path))
+    assert code == 2 and "sampling rate and the input columns" in err
+    path = tmp_path / "external.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("u", data=np.ones((8, 1)))
+        f.create_dataset("y", shape=(8, 1), dtype="f8", external=[("/etc/passwd", 0, 64)])
+        f.attrs["fs"] = 10.0
+    code, out, err = run(capsys, "info", path)
+    assert code == 2 and "external storage" in err and out == ""

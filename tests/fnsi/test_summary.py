@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fnsi.measurement import Measurement
-from fnsi.summary import detect_periods, snr_db, summarize
+from fnsi.summary import channel_rms, detect_periods, snr_db, summarize
 
 RNG = np.random.default_rng(3)
 PERIOD = 256
@@ -35,3 +35,11 @@ def test_summary_lists_every_channel_with_its_role() -> None:
     assert [(c["name"], c["role"]) for c in summary["channels"]] == [
         ("u0", "input"), ("a", "output"), ("b", "output")]
     assert summary["periods"] == 4 and summary["fs"] == 100.0
+
+
+def test_rms_is_finite_where_squares_overflow():
+    """Squares of 1e200 are infinite in float64; the peak-scaled RMS of a square wave is
+    its amplitude, to rounding."""
+    x = np.array([1e200, -1e200] * 4).reshape(1, 8, 1) * np.array([1.0, 0.5])
+    np.testing.assert_allclose(channel_rms(x), [1e200, 5e199], rtol=1e-15)
+    assert channel_rms(np.zeros((1, 4, 1))).tolist() == [0.0]

@@ -156,7 +156,11 @@ def test_dataset_pages_follow_cursors_newest_first_per_key(make_client, tmp_path
             break
     assert [d["id"] for d in seen] == [ids[4], ids[3], ids[1], ids[0]]
     assert [d["name"] for d in seen] == ["run4", "run3", "run1", "run0"]
-    assert seen[0]["outputs"] == ["NC2w_Z", "NC2b_Z"] and seen[0]["fs"] == REC.fs
+    assert (seen[0]["n_inputs"], seen[0]["n_outputs"], seen[0]["fs"]) == (1, 2, REC.fs)
+    # a listing carries counts; the channels come with GET of one dataset
+    assert "channels" not in seen[0] and "outputs" not in seen[0]
+    one = client.get(f"/v1/datasets/{ids[4]}", headers=alice).json()
+    assert one["outputs"] == ["NC2w_Z", "NC2b_Z"] and one["n_outputs"] == 2
     assert len(client.get("/v1/datasets", headers=bob).json()["items"]) == 1
     for bad in ("garbage", "am9iOjE"):  # the second is a job cursor ("job:1")
         response = client.get("/v1/datasets", headers=alice, params={"cursor": bad})
