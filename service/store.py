@@ -26,6 +26,7 @@ import json
 import os
 import re
 import secrets
+import shutil
 import sqlite3
 import tempfile
 import threading
@@ -65,6 +66,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     cancel_requested INTEGER NOT NULL DEFAULT 0, batch_id TEXT, enqueued_at REAL);
 CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state);
+CREATE INDEX IF NOT EXISTS jobs_by_finish ON jobs(finished_at);
 CREATE TABLE IF NOT EXISTS batches (
     id TEXT PRIMARY KEY, owner TEXT NOT NULL, idempotency_key TEXT, request_hash TEXT NOT NULL,
     job_ids TEXT NOT NULL, created_at TEXT NOT NULL, UNIQUE (owner, idempotency_key));
@@ -532,6 +534,41 @@ class Store:
                            ("cancellation requested", job_id))
             return self._job_row(db, job_id)
 
+    def delete_job(self, job_id: str) -> bool:
+        """Delete a finished job with its artefacts; False if it is not finished (or gone)."""
+        return bool(self._delete_finished("id = ?", (job_id,)))
+
+    def delete_jobs_finished_before(self, time_iso: str, keep_kinds: tuple[str, ...]
+                                    ) -> list[str]:
+        """Delete the jobs finished before ``time_iso`` (ISO 8601 UTC) with their artefacts,
+        except those of ``keep_kinds``; their ids."""
+        marks = ", ".join("?" * len(keep_kinds))
+        return self._delete_finished(f"finished_at < ? AND kind NOT IN ({marks})",
+                                     (time_iso, *keep_kinds))
+
+    def _delete_finished(self, condition: str, args: tuple[Any, ...]) -> list[str]:
+        """Delete the finished jobs matching an SQL ``condition``; their ids.
+
+        Artefact folders are moved to tmp/ inside the lock, with the records, and removed
+        after it: no listing ever sees a job without its folder or a folder without its
+        job, and a crash leaves only scratch files behind.
+        """
+        removed, doomed = [], []
+        with self._transaction() as db:
+            states = ", ".join("?" * len(TERMINAL))
+            rows = db.execute(f"SELECT id FROM jobs WHERE state IN ({states}) AND {condition}",
+                              (*TERMINAL, *args)).fetchall()
+            for row in rows:
+                db.execute("DELETE FROM jobs WHERE id = ?", (row["id"],))
+                removed.append(row["id"])
+                folder = self.artefact_dir(row["id"])
+                if folder.is_dir():
+                    doomed.append(Path(tempfile.mkdtemp(dir=self.tmp)) / row["id"])
+                    os.replace(folder, doomed[-1])
+        for folder in doomed:
+            shutil.rmtree(folder.parent, ignore_errors=True)
+        return removed
+
     def reap_lost(self, max_attempts: int) -> list[str]:
         """Re-queue (or fail, after ``max_attempts``) running jobs whose lease expired.
 
@@ -600,9 +637,9 @@ class Store:
             return None if row is None else _batch(row)
 
     def jobs_of(self, job_ids: list[str]) -> list[JobRecord]:
-        """Job records in the order of ``job_ids``."""
+        """Job records in the order of ``job_ids`` (deleted jobs left out)."""
         with self._connect() as db:
-            return [self._job_row(db, j) for j in job_ids]
+            return [job for j in job_ids if (job := self._job_row(db, j)) is not None]
 
     # -- artefacts --------------------------------------------------------------------------
     def artefact_dir(self, job_id: str) -> Path:
