@@ -387,20 +387,22 @@ class Store:
         with self._render_locks[int(record.digest[:8], 16) % _RENDER_LOCKS]:
             with suppress(FileNotFoundError):
                 return open(path, "rb")  # rendered while we waited
-            return self._render_csv(record.digest, path)
+            return self._render_csv(record, path)
 
-    def _render_csv(self, digest: str, path: Path) -> BinaryIO | None:
-        try:
-            measurement = Measurement.from_npz(self.blob_path(digest))
-        except FileNotFoundError:
+    def _render_csv(self, record: DatasetRecord, path: Path) -> BinaryIO | None:
+        blob = self.open_blob(record)
+        if blob is None:
             return None
+        with blob:
+            measurement = Measurement.from_npz(blob)
         with self.partial_file(".csv") as partial:
             with open(partial, "w") as f:  # slow: outside the database lock
                 measurement.to_csv(f)
             with self._transaction() as db:
                 # Put in place only if the blob still exists (delete_dataset removes the
                 # rendering in this lock), and opened before the lock is released.
-                if db.execute("SELECT 1 FROM blobs WHERE digest = ?", (digest,)).fetchone():
+                if db.execute("SELECT 1 FROM blobs WHERE digest = ?",
+                              (record.digest,)).fetchone():
                     os.replace(partial, path)
                     return open(path, "rb")
         return None
