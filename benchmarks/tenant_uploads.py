@@ -1,8 +1,9 @@
 """Does an upload's time tell a tenant what another tenant holds? And CSV download times.
 
 Starts fnsi-service (embedded runner) with two API keys, A and B. Each round A uploads a
-fresh record (100,000 samples of three channels, ~2.4 MB NPZ); then B uploads the same
-file ("held": A holds it) and another fresh record ("fresh": nobody holds it). With a
+fresh record (4 x ``--period`` samples of three channels: 24 MB as NPZ by default); then B
+uploads the same file ("held": A holds it) and another fresh record ("fresh": nobody holds
+it), in alternating order from round to round. With a
 deduplication cache shared across tenants B's "held" upload skipped parsing and was ~3x
 faster than "fresh", so B could test whether A holds a given file; with blobs addressed
 per tenant the two take the same path and the ratio is ~1. Then A downloads its record as
@@ -12,7 +13,7 @@ Last output line: one JSON object {"rounds", "held_median_s", "fresh_median_s",
 "held_over_fresh", "csv_first_median_s", "csv_kept_median_s"}.
 
 Run from the repository root (it reuses the test suite's server helpers):
-``.venv/bin/python -m benchmarks.tenant_uploads`` (about a minute).
+``.venv/bin/python -m benchmarks.tenant_uploads`` (a few minutes).
 """
 
 from __future__ import annotations
@@ -34,9 +35,9 @@ from tests.service.servers import start_stack
 KEYS = ("tenant-a", "tenant-b")
 
 
-def record_npz(seed: int) -> bytes:
+def record_npz(seed: int, period: int) -> bytes:
     """A fresh record (its noise depends on ``seed``) as an NPZ file."""
-    record = formats.make_record(periods=4, period_length=25_000, seed=seed)
+    record = formats.make_record(periods=4, period_length=period, seed=seed)
     buffer = io.BytesIO()
     np.savez(buffer, u=record.u, y=record.y, fs=np.float64(record.fs),
              input_names=np.array(record.input_names),
@@ -52,7 +53,7 @@ def timed(client: httpx.Client, method: str, path: str, **kwargs) -> tuple[float
     return elapsed, response
 
 
-def run(rounds: int) -> dict[str, float]:
+def run(rounds: int, period: int) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as folder:
         stack = start_stack(Path(folder) / "data", FNSI_API_KEYS=",".join(KEYS))
         try:
@@ -60,14 +61,15 @@ def run(rounds: int) -> dict[str, float]:
                     for k in KEYS)
             held, fresh, csv_first, csv_kept = [], [], [], []
             for k in range(rounds):
-                data = record_npz(seed=k)
+                data, new = record_npz(k, period), record_npz(1000 + k, period)
                 _, ours = timed(a, "POST", "/v1/datasets", files={"file": ("r.npz", data)})
-                t, theirs = timed(b, "POST", "/v1/datasets", files={"file": ("r.npz", data)})
-                held.append(t)
-                t, other = timed(b, "POST", "/v1/datasets",
-                                 files={"file": ("r.npz", record_npz(seed=1000 + k))})
-                fresh.append(t)
-                for response in (theirs, other):  # B must not deduplicate against itself
+                replies = {}
+                for name in ("held", "fresh") if k % 2 == 0 else ("fresh", "held"):
+                    replies[name] = timed(b, "POST", "/v1/datasets", files={
+                        "file": ("r.npz", data if name == "held" else new)})
+                held.append(replies["held"][0])
+                fresh.append(replies["fresh"][0])
+                for _, response in replies.values():  # B must not deduplicate with itself
                     timed(b, "DELETE", f"/v1/datasets/{response.json()['id']}")
                 download = f"/v1/datasets/{ours.json()['id']}/download"
                 csv_first.append(timed(a, "GET", download, params={"format": "csv"})[0])
@@ -85,8 +87,11 @@ def run(rounds: int) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rounds", type=int, default=7, help="upload rounds (default 7)")
-    print(json.dumps(run(parser.parse_args().rounds)))
+    parser.add_argument("--rounds", type=int, default=6, help="upload rounds (default 6)")
+    parser.add_argument("--period", type=int, default=250_000,
+                        help="samples per period of the records (default 250000)")
+    args = parser.parse_args()
+    print(json.dumps(run(args.rounds, args.period)))
 
 
 if __name__ == "__main__":
