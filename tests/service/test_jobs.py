@@ -121,6 +121,10 @@ def test_delete_of_a_finished_job_removes_its_record_and_artefacts(client):
     assert view["job_ids"] == [in_batch] and view["jobs"] == [] and view["counts"] == {}
     assert client.get(f"/v1/jobs/{other.id}/artefacts/result.json").content == b"{}"
     assert client.get(f"/v1/jobs/{queued.id}").json()["state"] == JobState.QUEUED
+    # an artefact being downloaded (opened) when its job is deleted is still sent whole
+    with store.open_artefact(other.id, "result.json") as sending:
+        assert client.delete(f"/v1/jobs/{other.id}").status_code == 204
+        assert sending.read() == b"{}"
     assert list(store.tmp.iterdir()) == []
 
 
