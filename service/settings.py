@@ -71,11 +71,6 @@ class Settings(BaseSettings):
         "published is published again (the broker may have lost it; duplicates are safe).")
     queue_name: str = Field("fnsi", description="Celery queue the API and workers share; "
                             "deployments sharing a Redis database need different names.")
-    # -- issue 19, HTTP layer: retention of finished jobs
-    job_retention_days: float | None = Field(
-        None, gt=0, description="Finished jobs (not those of a study) are deleted with their "
-        "artefacts this many days [d] after they finished, by the API's supervisor. Unset: "
-        "kept until deleted with DELETE /v1/jobs/{id}.", examples=[30])
 
     @field_validator("api_keys", mode="before")
     @classmethod
@@ -98,6 +93,12 @@ class Settings(BaseSettings):
     def queue_kind(self) -> str:
         """``"celery"`` with a broker, else ``"embedded"``."""
         return "celery" if self.broker_url else "embedded"
+
+    # -- issue 19, HTTP layer: retention of finished jobs
+    job_retention_days: float | None = Field(
+        None, gt=0, description="Finished jobs (not those of a study) are deleted with their "
+        "artefacts this many days [d] after they finished, by the API's supervisor. Unset: "
+        "kept until deleted with DELETE /v1/jobs/{id}.", examples=[30])
 
 
 @lru_cache
