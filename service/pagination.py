@@ -20,10 +20,13 @@ NOT_OURS = "not one returned by this API; pass next_cursor from the previous pag
 """Why a cursor was refused (it was not produced by :func:`encode_cursor` for this list)."""
 
 PageLimit = Annotated[int, Query(ge=1, le=200, description="Page size.")]
-PageCursor = Annotated[str | None, Query(description="next_cursor of the previous page.")]
+PageCursor = Annotated[str | None, Query(
+    description="next_cursor of the previous page; absent or empty: the first page.")]
 NextCursor = Annotated[str | None, Field(
     description="Pass as ?cursor= to get the next page; null on the last page.")]
 
+# SQLite integers are signed 64-bit: a larger position would overflow in the query.
+_ROWID_END = 2**63
 T = TypeVar("T")
 P = TypeVar("P")
 
@@ -49,8 +52,8 @@ def decode_cursor(cursor: str, kind: str) -> str:
 def cursor_position(cursor: str | None, kind: str,
                     parse: Callable[[str], P] = str) -> P | None:
     """Position of a request's ``cursor`` query parameter, converted by ``parse`` (None:
-    first page); a malformed cursor is a 422 problem."""
-    if cursor is None:
+    first page, also for an empty ``cursor=``); a malformed cursor is a 422 problem."""
+    if not cursor:
         return None
     try:
         return parse(decode_cursor(cursor, kind))
@@ -59,8 +62,9 @@ def cursor_position(cursor: str | None, kind: str,
 
 
 def sequence_number(position: str) -> int:
-    """A cursor position that is a row's sequence number; ValueError otherwise."""
-    if not position.isdigit():
+    """A cursor position that is a row's sequence number (a positive SQLite integer,
+    below 2**63); ValueError otherwise."""
+    if not (position.isascii() and position.isdigit()) or not 0 < int(position) < _ROWID_END:
         raise ValueError(NOT_OURS)
     return int(position)
 

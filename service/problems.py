@@ -16,13 +16,18 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.routing import iter_route_contexts
 from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 MEDIA_TYPE = "application/problem+json"
 log = logging.getLogger("fnsi.service")
 
 
+INTERNAL_ERROR = ("internal error; the server log has the details. Retry later or report the "
+                  "request to the operator")
 DISK_FULL = ("the server is out of disk space; nothing stored earlier was lost. Retry later "
              "or ask the operator to free space under FNSI_DATA_DIR")
 
@@ -71,11 +76,25 @@ def problem_response(request: Request, status: int, detail: str, *,
                         media_type=MEDIA_TYPE, headers=headers)
 
 
+def _allowed_methods(request: Request) -> list[str]:
+    """Methods of every route of the app whose path matches the request's.
+
+    Starlette's 405 names only the first route matching the path, while FastAPI declares
+    one route per method (GET and DELETE of /v1/jobs/{id} are two routes).
+    """
+    methods: set[str] = set()
+    for route in iter_route_contexts(request.app.routes):  # routes of included routers too
+        if route.matches(request.scope)[0] != Match.NONE:
+            methods |= route.methods or set()
+    return sorted(methods)
+
+
 def _http_detail(exc: StarletteHTTPException, request: Request) -> str:
     if exc.status_code == 404 and exc.detail == "Not Found":
         return f"no route {request.url.path}; see /docs for the routes of this API"
     if exc.status_code == 405:
-        return f"{request.method} is not allowed on {request.url.path}; see /docs"
+        return (f"{request.method} is not allowed on {request.url.path}; use "
+                f"{' or '.join(_allowed_methods(request))} (see /docs)")
     if exc.status_code == 400 and str(exc.detail).startswith("Part exceeded maximum size"):
         # Starlette's form limit, on the upload's only non-file field
         return (f"the form field `meta` is too large ({exc.detail}, FNSI_MAX_META_BYTES); "
@@ -92,8 +111,11 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:
+            headers = {**(headers or {}), "Allow": ", ".join(_allowed_methods(request))}
         return problem_response(request, exc.status_code, _http_detail(exc, request),
-                                headers=getattr(exc, "headers", None))
+                                headers=headers)
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -111,13 +133,47 @@ def install(app: FastAPI) -> None:
     async def _os_error(request: Request, exc: OSError) -> JSONResponse:
         if exc.errno == errno.ENOSPC:
             return problem_response(request, 507, DISK_FULL)
-        return await _unexpected(request, exc)
+        return _internal_error(request, exc)
 
-    @app.exception_handler(Exception)
-    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return problem_response(request, 500, "internal error; the server log has the "
-                                "details. Retry later or report the request to the operator")
+    app.add_middleware(UnexpectedErrorMiddleware)
+
+
+def _internal_error(request: Request, exc: BaseException) -> JSONResponse:
+    log.error("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
+    return problem_response(request, 500, INTERNAL_ERROR)
+
+
+class UnexpectedErrorMiddleware:
+    """Answer an exception no handler took with a complete problem+json 500.
+
+    Starlette's own last-resort handler (``exception_handler(Exception)``) sends its
+    response and then re-raises, and uvicorn closes a connection whose application
+    raised: every unexpected error cost the client its keep-alive connection. This
+    middleware, inside Starlette's, ends the request normally instead. An error after the
+    response started cannot be answered: it is re-raised, and the connection closed is
+    how the client learns that the body it got is incomplete.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracked_send(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracked_send)
+        except Exception as exc:
+            if started:
+                raise
+            await _internal_error(Request(scope), exc)(scope, receive, send)
 
 
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {

@@ -12,8 +12,9 @@ not the queue, holds job state, so either can lose or repeat a hand-over safely:
   ``fnsi-worker`` processes.
 
 A supervisor thread (both modes) re-queues running jobs whose lease expired (worker
-killed) or fails them after FNSI_MAX_ATTEMPTS, and publishes again jobs queued for longer
-than FNSI_REQUEUE_AFTER (a message lost with the broker).
+killed) or fails them after FNSI_MAX_ATTEMPTS, publishes again jobs queued for longer
+than FNSI_REQUEUE_AFTER (a message lost with the broker), and deletes jobs finished
+longer than FNSI_JOB_RETENTION_DAYS ago.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Protocol
 
+from service.retention import delete_expired_jobs
 from service.settings import Settings
 from service.store import JobState, Store
 from worker.tasks import execute
@@ -198,6 +200,8 @@ class Supervisor:
         for job_id in self.queue.resubmit_stale():
             log.warning("job %s still queued after %g s; published again", job_id,
                         self.settings.requeue_after)
+        for job_id in delete_expired_jobs(self.settings, self.store):
+            log.info("job %s deleted: finished more than FNSI_JOB_RETENTION_DAYS ago", job_id)
 
     def _loop(self) -> None:
         while not self._stopping.wait(self.settings.supervisor_interval):

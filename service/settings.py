@@ -104,6 +104,11 @@ class Settings(BaseSettings):
     max_channels: int = Field(
         1024, gt=0, description="Most channels (inputs plus outputs) of an uploaded dataset; "
         "beyond it an upload is refused with 413 before its samples are parsed.")
+    # -- issue 19, HTTP layer: retention of finished jobs
+    job_retention_days: float | None = Field(
+        None, gt=0, description="Finished jobs (not those of a study) are deleted with their "
+        "artefacts this many days [d] after they finished, by the API's supervisor. Unset: "
+        "kept until deleted with DELETE /v1/jobs/{id}.", examples=[30])
 
 
 @lru_cache

@@ -5,10 +5,16 @@ Celery workers all read and write it, never the broker's result backend. Records
 one SQLite database (atomic transactions, safe across processes on one host); dataset
 arrays live in content-addressed canonical NPZ files, artefacts in one folder per job.
 
+Blobs and the upload cache are addressed by owner and content together: identical uploads
+of one API key share a blob, those of two keys never do, so an upload takes the same path
+and time whatever another key holds (a shared cache would tell a key, by its speed,
+whether another holds a given file).
+
 Layout::
 
     <data_dir>/fnsi.sqlite3          records
-    <data_dir>/blobs/<digest>.npz    canonical datasets (shared by identical uploads)
+    <data_dir>/blobs/<digest>.npz    canonical datasets (shared by one owner's identical uploads)
+    <data_dir>/blobs/<digest>.csv    CSV rendering of a blob, made on first download
     <data_dir>/jobs/<job_id>/        artefacts of a job
     <data_dir>/tmp/                  partial files, moved into place with os.replace
 """
@@ -20,16 +26,18 @@ import json
 import os
 import re
 import secrets
+import shutil
 import sqlite3
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -37,6 +45,8 @@ from fnsi.measurement import Measurement
 from fnsi.summary import summarize
 
 ARTEFACT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
+# CSV renderings run one at a time per lock; a blob always takes the same lock.
+_RENDER_LOCKS = 16
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS blobs (
@@ -56,6 +66,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     cancel_requested INTEGER NOT NULL DEFAULT 0, batch_id TEXT, enqueued_at REAL);
 CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state);
+CREATE INDEX IF NOT EXISTS jobs_by_finish ON jobs(finished_at);
 CREATE TABLE IF NOT EXISTS batches (
     id TEXT PRIMARY KEY, owner TEXT NOT NULL, idempotency_key TEXT, request_hash TEXT NOT NULL,
     job_ids TEXT NOT NULL, created_at TEXT NOT NULL, UNIQUE (owner, idempotency_key));
@@ -185,6 +196,11 @@ def measurement_digest(measurement: Measurement) -> str:
     return h.hexdigest()
 
 
+def _owned_digest(owner: str, digest: str) -> str:
+    """Address of a blob or an upload of ``owner`` (see the module docstring)."""
+    return hashlib.sha256(f"{owner}|{digest}".encode()).hexdigest()
+
+
 class Store:
     """File and SQLite store rooted at ``data_dir`` (created if missing).
 
@@ -202,6 +218,7 @@ class Store:
         for d in (self.root, self.blobs, self.jobs_dir, self.tmp):
             d.mkdir(parents=True, exist_ok=True)
         self.db_path = self.root / "fnsi.sqlite3"
+        self._render_locks = [threading.Lock() for _ in range(_RENDER_LOCKS)]
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
             db.executescript(_SCHEMA)
@@ -248,10 +265,11 @@ class Store:
         return self.blobs / f"{digest}.npz"
 
     def dataset_for_upload(self, upload_key: str, owner: str, name: str) -> DatasetRecord | None:
-        """New dataset sharing the blob of an identical earlier upload, if there was one."""
+        """New dataset sharing the blob of an identical earlier upload of ``owner``, if
+        there was one."""
         with self._transaction() as db:
             row = db.execute("SELECT digest FROM uploads WHERE upload_key = ?",
-                             (upload_key,)).fetchone()
+                             (_owned_digest(owner, upload_key),)).fetchone()
             if row is None:
                 return None
             return self._insert_dataset(db, owner, row["digest"], name, None)
@@ -261,13 +279,14 @@ class Store:
                         source_job: str | None = None) -> DatasetRecord:
         """Store a validated measurement as a new dataset of ``owner``.
 
-        The canonical NPZ is written once per distinct content; identical content shares it.
+        The canonical NPZ is written once per owner and distinct content; identical
+        content of one owner shares it.
         """
         if source_job is not None:  # a re-run attempt must not add a second dataset
             earlier = self.dataset_of_job(source_job)
             if earlier is not None:
                 return earlier
-        digest = measurement_digest(measurement)
+        digest = _owned_digest(owner, measurement_digest(measurement))
         path = self.blob_path(digest)
         summary = summarize(measurement, periods_source)
         with self.partial_file(".npz") as partial:
@@ -283,7 +302,7 @@ class Store:
                                (digest, json.dumps(summary), path.stat().st_size))
                 if upload_key is not None:
                     db.execute("INSERT OR REPLACE INTO uploads (upload_key, digest) "
-                               "VALUES (?, ?)", (upload_key, digest))
+                               "VALUES (?, ?)", (_owned_digest(owner, upload_key), digest))
                 return self._insert_dataset(db, owner, digest, name, source_job)
 
     def _insert_dataset(self, db: sqlite3.Connection, owner: str, digest: str, name: str,
@@ -345,16 +364,48 @@ class Store:
                 self.blob_path(digest).unlink(missing_ok=True)
                 self.blob_path(digest).with_suffix(".csv").unlink(missing_ok=True)
 
-    def csv_path(self, record: DatasetRecord) -> Path:
-        """CSV rendering of a dataset, written on first request and kept beside the blob."""
+    def open_blob(self, record: DatasetRecord) -> BinaryIO | None:
+        """The dataset's canonical NPZ opened for reading; None once it is deleted.
+
+        An open file stays whole if the dataset is deleted while it is read (unlink
+        removes the name, not the data), so a download is complete or never starts.
+        """
+        with suppress(FileNotFoundError):
+            return open(self.blob_path(record.digest), "rb")
+        return None
+
+    def open_csv(self, record: DatasetRecord) -> BinaryIO | None:
+        """The dataset's CSV rendering opened for reading; None once it is deleted.
+
+        Rendered on first request, once (concurrent requests for one blob wait for it),
+        kept beside the blob and deleted with it. ValueError if the dataset has several
+        realisations (CSV holds one).
+        """
         path = self.blob_path(record.digest).with_suffix(".csv")
-        if not path.exists():
-            measurement = Measurement.from_npz(self.blob_path(record.digest))
-            with self.partial_file(".csv") as partial:
-                with open(partial, "w") as f:
-                    measurement.to_csv(f)
-                os.replace(partial, path)
-        return path
+        with suppress(FileNotFoundError):
+            return open(path, "rb")
+        with self._render_locks[int(record.digest[:8], 16) % _RENDER_LOCKS]:
+            with suppress(FileNotFoundError):
+                return open(path, "rb")  # rendered while we waited
+            return self._render_csv(record, path)
+
+    def _render_csv(self, record: DatasetRecord, path: Path) -> BinaryIO | None:
+        blob = self.open_blob(record)
+        if blob is None:
+            return None
+        with blob:
+            measurement = Measurement.from_npz(blob)
+        with self.partial_file(".csv") as partial:
+            with open(partial, "w") as f:  # slow: outside the database lock
+                measurement.to_csv(f)
+            with self._transaction() as db:
+                # Put in place only if the blob still exists (delete_dataset removes the
+                # rendering in this lock), and opened before the lock is released.
+                if db.execute("SELECT 1 FROM blobs WHERE digest = ?",
+                              (record.digest,)).fetchone():
+                    os.replace(partial, path)
+                    return open(path, "rb")
+        return None
 
     # -- jobs -------------------------------------------------------------------------------
     def create_job(self, owner: str, kind: str, request: dict[str, Any]) -> JobRecord:
@@ -485,6 +536,41 @@ class Store:
                            ("cancellation requested", job_id))
             return self._job_row(db, job_id)
 
+    def delete_job(self, job_id: str) -> bool:
+        """Delete a finished job with its artefacts; False if it is not finished (or gone)."""
+        return bool(self._delete_finished("id = ?", (job_id,)))
+
+    def delete_jobs_finished_before(self, time_iso: str, keep_kinds: tuple[str, ...]
+                                    ) -> list[str]:
+        """Delete the jobs finished before ``time_iso`` (ISO 8601 UTC) with their artefacts,
+        except those of ``keep_kinds``; their ids."""
+        marks = ", ".join("?" * len(keep_kinds))
+        return self._delete_finished(f"finished_at < ? AND kind NOT IN ({marks})",
+                                     (time_iso, *keep_kinds))
+
+    def _delete_finished(self, condition: str, args: tuple[Any, ...]) -> list[str]:
+        """Delete the finished jobs matching an SQL ``condition``; their ids.
+
+        Artefact folders are moved to tmp/ inside the lock, with the records, and removed
+        after it: no listing ever sees a job without its folder or a folder without its
+        job, and a crash leaves only scratch files behind.
+        """
+        removed, doomed = [], []
+        with self._transaction() as db:
+            states = ", ".join("?" * len(TERMINAL))
+            rows = db.execute(f"SELECT id FROM jobs WHERE state IN ({states}) AND {condition}",
+                              (*TERMINAL, *args)).fetchall()
+            for row in rows:
+                db.execute("DELETE FROM jobs WHERE id = ?", (row["id"],))
+                removed.append(row["id"])
+                folder = self.artefact_dir(row["id"])
+                if folder.is_dir():
+                    doomed.append(Path(tempfile.mkdtemp(dir=self.tmp)) / row["id"])
+                    os.replace(folder, doomed[-1])
+        for folder in doomed:
+            shutil.rmtree(folder.parent, ignore_errors=True)
+        return removed
+
     def reap_lost(self, max_attempts: int) -> list[str]:
         """Re-queue (or fail, after ``max_attempts``) running jobs whose lease expired.
 
@@ -553,9 +639,9 @@ class Store:
             return None if row is None else _batch(row)
 
     def jobs_of(self, job_ids: list[str]) -> list[JobRecord]:
-        """Job records in the order of ``job_ids``."""
+        """Job records in the order of ``job_ids`` (deleted jobs left out)."""
         with self._connect() as db:
-            return [self._job_row(db, j) for j in job_ids]
+            return [job for j in job_ids if (job := self._job_row(db, j)) is not None]
 
     # -- artefacts --------------------------------------------------------------------------
     def artefact_dir(self, job_id: str) -> Path:
@@ -584,6 +670,15 @@ class Store:
         """Path of an artefact found by listing (a name is never used as a path)."""
         listed = {n for n, _ in self.list_artefacts(job_id)}
         return self.artefact_dir(job_id) / name if name in listed else None
+
+    def open_artefact(self, job_id: str, name: str) -> BinaryIO | None:
+        """An artefact found by listing, opened for reading; None if the job has no such
+        artefact, or no longer (deleted with its job)."""
+        path = self.artefact_path(job_id, name)
+        if path is not None:
+            with suppress(FileNotFoundError):
+                return open(path, "rb")
+        return None
 
 
 def _batch(row: sqlite3.Row) -> BatchRecord:

@@ -6,9 +6,10 @@ import mimetypes
 from typing import Annotated
 
 from fastapi import APIRouter, Path
-from fastapi.responses import FileResponse, Response
+from fastapi.responses import Response
 
 from service.deps import OwnJobDep, StoreDep
+from service.downloads import file_download
 from service.problems import ERROR_RESPONSES, ProblemError
 from service.schemas.jobs import Artefact
 
@@ -41,8 +42,8 @@ def get_artefact(job: OwnJobDep, store: StoreDep,
                  name: Annotated[str, Path(description="Artefact name, e.g. frf.png.")]
                  ) -> Response:
     """One artefact of a job, by the name given in its listing."""
-    path = store.artefact_path(job.id, name)
-    if path is None:
+    file = store.open_artefact(job.id, name)
+    if file is None:
         known = [n for n, _ in store.list_artefacts(job.id)]
         raise ProblemError(404, f"job {job.id} has no artefact {name!r}; it has {known}")
-    return FileResponse(path, media_type=_media_type(name), filename=name)
+    return file_download(file, _media_type(name), name)

@@ -7,11 +7,12 @@ from pathlib import Path
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Query, UploadFile
-from fastapi.responses import FileResponse, Response
+from fastapi.responses import Response
 from pydantic import ValidationError
 
 from fnsi.formats import DecodeLimitError, DecodeLimits, ReadOptions, format_of, read_measurement
 from service.deps import ApiKeyDep, OwnDatasetDep, SettingsDep, StoreDep
+from service.downloads import file_download
 from service.pagination import (
     PageCursor,
     PageLimit,
@@ -160,16 +161,21 @@ def download_dataset(
         description="npz (canonical) or csv (one realisation, inputs then outputs)")
     ] = DownloadFormat.NPZ,
 ) -> Response:
-    """The dataset as the canonical NPZ or as CSV."""
+    """The dataset as the canonical NPZ or as CSV (rendered on the first CSV download,
+    then kept)."""
     stem = dataset.name.rsplit(".", 1)[0] or dataset.id
     if format == DownloadFormat.CSV:
         try:
-            path = store.csv_path(dataset)
+            file = store.open_csv(dataset)
         except ValueError as err:
             raise ProblemError(422, str(err)) from None
-        return FileResponse(path, media_type="text/csv", filename=f"{stem}.csv")
-    return FileResponse(store.blob_path(dataset.digest), media_type="application/octet-stream",
-                        filename=f"{stem}.npz")
+        media_type = "text/csv"
+    else:
+        file, media_type = store.open_blob(dataset), "application/octet-stream"
+    if file is None:
+        raise ProblemError(404, f"dataset {dataset.id} does not exist: it was deleted as this "
+                           "download began")
+    return file_download(file, media_type, f"{stem}.{format.value}")
 
 
 @router.delete("/{dataset_id}", status_code=204, summary="Delete a dataset",

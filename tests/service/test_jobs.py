@@ -4,6 +4,9 @@ typed job results."""
 from __future__ import annotations
 
 import json
+import sqlite3
+import time
+from datetime import UTC, datetime, timedelta
 
 import pytest
 
@@ -81,8 +84,83 @@ def test_cancel_of_a_queued_job_is_immediate(client):
     response = client.delete(f"/v1/jobs/{job.id}")
     assert response.status_code == 202
     assert response.json()["state"] == JobState.CANCELLED
-    # cancelling again changes nothing
-    assert client.delete(f"/v1/jobs/{job.id}").json()["state"] == JobState.CANCELLED
+    # the job is finished now: a second DELETE deletes it
+    assert client.delete(f"/v1/jobs/{job.id}").status_code == 204
+    assert client.get(f"/v1/jobs/{job.id}").status_code == 404
+
+
+def finished_job(client, kind="simulation", request=None, *, days_ago=0.0):
+    """A job of the public owner that succeeded ``days_ago`` days ago, with an artefact."""
+    store = client.app.state.store
+    job = store.create_job("public", kind, request or SIM["request"])
+    store.write_artefact(job.id, "result.json", b"{}")
+    store.finish(job.id, JobState.SUCCEEDED, result={})
+    finished = datetime.now(UTC) - timedelta(days=days_ago)
+    with sqlite3.connect(store.db_path) as db:
+        db.execute("UPDATE jobs SET finished_at = ? WHERE id = ?",
+                   (finished.isoformat(timespec="milliseconds"), job.id))
+    return job
+
+
+def test_delete_of_a_finished_job_removes_its_record_and_artefacts(client):
+    client.app.state.queue.stop()
+    store = client.app.state.store
+    job, other = finished_job(client), finished_job(client)
+    queued = store.create_job("public", "simulation", SIM["request"])
+    batch_id = batch(client, [SIM]).json()["id"]
+    in_batch = store.get_batch(batch_id).job_ids[0]
+    store.finish(in_batch, JobState.FAILED, error="no")
+    for job_id in (job.id, in_batch):
+        assert client.delete(f"/v1/jobs/{job_id}").status_code == 204
+        assert client.get(f"/v1/jobs/{job_id}").status_code == 404
+        assert client.get(f"/v1/jobs/{job_id}/artefacts").status_code == 404
+        assert not store.artefact_dir(job_id).exists()
+    assert client.delete(f"/v1/jobs/{job.id}").status_code == 404
+    # the batch shows what is left of it; other jobs and scratch space are untouched
+    view = client.get(f"/v1/batches/{batch_id}").json()
+    assert view["job_ids"] == [in_batch] and view["jobs"] == [] and view["counts"] == {}
+    assert client.get(f"/v1/jobs/{other.id}/artefacts/result.json").content == b"{}"
+    assert client.get(f"/v1/jobs/{queued.id}").json()["state"] == JobState.QUEUED
+    # an artefact being downloaded (opened) when its job is deleted is still sent whole
+    with store.open_artefact(other.id, "result.json") as sending:
+        assert client.delete(f"/v1/jobs/{other.id}").status_code == 204
+        assert sending.read() == b"{}"
+    assert list(store.tmp.iterdir()) == []
+
+
+def test_a_finished_job_of_a_study_is_kept_with_the_study(client):
+    client.app.state.queue.stop()
+    job = finished_job(client, "study_revision", {"study_id": "study_1"})
+    response = client.delete(f"/v1/jobs/{job.id}")
+    assert response.status_code == 409
+    assert "study_1" in response.json()["detail"]
+    assert client.get(f"/v1/jobs/{job.id}/artefacts/result.json").status_code == 200
+
+
+def test_the_supervisor_deletes_jobs_finished_beyond_the_retention(make_client):
+    client = make_client(job_retention_days=1.0, supervisor_interval=0.1)
+    client.app.state.queue.stop()  # nothing may start the queued job
+    store = client.app.state.store
+    expired = finished_job(client, days_ago=1.01)
+    recent = finished_job(client, days_ago=0.99)
+    study_job = finished_job(client, "study_revision", {"study_id": "study_1"}, days_ago=9)
+    queued = store.create_job("public", "simulation", SIM["request"])
+    deadline = time.monotonic() + 30
+    while store.get_job(expired.id) is not None:
+        assert time.monotonic() < deadline, "the supervisor kept an expired job"
+        time.sleep(0.1)
+    assert not store.artefact_dir(expired.id).exists()
+    for kept in (recent, study_job, queued):
+        assert store.get_job(kept.id) is not None
+    assert store.list_artefacts(recent.id) == [("result.json", 2)]
+
+
+def test_without_a_retention_setting_finished_jobs_stay(make_client):
+    client = make_client(supervisor_interval=0.1)
+    client.app.state.queue.stop()
+    old = finished_job(client, days_ago=10_000)
+    time.sleep(0.5)  # several supervisor passes
+    assert client.get(f"/v1/jobs/{old.id}").status_code == 200
 
 
 IDENTIFIED = {
