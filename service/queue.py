@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -27,6 +28,7 @@ from typing import Protocol
 
 from service.settings import Settings
 from service.store import JobState, Store
+from worker.job_process import become_job_process
 from worker.tasks import execute
 
 log = logging.getLogger("fnsi.service")
@@ -69,8 +71,12 @@ class EmbeddedQueue:
 
     def _new_pool(self) -> ProcessPoolExecutor:
         # spawn: forking a process that runs threads (uvicorn, this dispatcher) is unsafe.
+        # The pool starts its processes from the dispatcher thread, which lives as long as
+        # the API, so they may ask the kernel to end them with the API.
         return ProcessPoolExecutor(self.settings.embedded_workers,
-                                   mp_context=multiprocessing.get_context("spawn"))
+                                   mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=become_job_process,
+                                   initargs=(os.getpid(), self.settings.job_nice, True))
 
     def start(self) -> None:
         self._pool = self._new_pool()
@@ -125,7 +131,10 @@ class EmbeddedQueue:
         free = self.settings.embedded_workers - len(self._running)
         if free <= 0:
             return
-        for job in self.store.jobs_in_state(JobState.QUEUED):
+        # Re-queued jobs (an attempt was lost with its process) first, then oldest first.
+        queued = sorted(self.store.jobs_in_state(JobState.QUEUED),
+                        key=lambda job: (job.attempts == 0, job.seq))
+        for job in queued:
             if free == 0:
                 break
             if job.id in self._running:

@@ -12,10 +12,14 @@
 
 from __future__ import annotations
 
+import os
+
 from celery import Celery
 from celery.exceptions import SoftTimeLimitExceeded
+from celery.signals import worker_process_init
 
 from service.settings import Settings, get_settings
+from worker.job_process import become_job_process
 from worker.tasks import execute
 
 TASK_NAME = "fnsi.run_job"
@@ -49,3 +53,11 @@ def make_celery(settings: Settings) -> Celery:
 
 
 app = make_celery(get_settings())
+
+
+@worker_process_init.connect(weak=False, dispatch_uid="fnsi-job-process")
+def _job_process(**_: object) -> None:
+    """Each pool child of fnsi-worker is a job process (lower priority, ends with the
+    worker). The kernel's parent-death signal is not asked for: the pool may fork from a
+    thread that ends before the worker; the lease renewal checks the parent instead."""
+    become_job_process(os.getppid(), get_settings().job_nice, die_with_parent=False)

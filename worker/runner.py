@@ -24,6 +24,7 @@ from typing import Any
 
 from service.settings import Settings
 from service.store import Claim, JobRecord, JobState, Store
+from worker.job_process import exit_if_orphaned
 
 log = logging.getLogger("fnsi.worker")
 
@@ -77,6 +78,7 @@ class Attempt:
 
     def _beat(self) -> None:
         while not self._stop.wait(self.settings.lease_seconds / 4):
+            exit_if_orphaned(self.job_id)  # before renewing: an orphan's lease must lapse
             if self.store.report(self.job_id, lease_seconds=self.settings.lease_seconds):
                 self.cancelled.set()
 
