@@ -7,7 +7,10 @@
 * time limits below the Redis visibility timeout, so a task still running is never
   redelivered to a second worker;
 * no result backend: job state lives in the job store (a Celery PENDING state would only
-  mean "unknown"); the task is idempotent through the store's atomic claim.
+  mean "unknown"); the task is idempotent through the store's atomic claim;
+* two message priorities (Redis keeps one list per priority and a worker empties the
+  first before the last): a job re-queued after its worker died is published at
+  :data:`FIRST` and runs before the jobs that were waiting behind it.
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ from worker.job_process import become_job_process
 from worker.tasks import execute
 
 TASK_NAME = "fnsi.run_job"
+# Message priorities on Redis: 0 is served first (kombu's priority steps 0, 3, 6, 9).
+FIRST, LAST = 0, 9
 
 
 def make_celery(settings: Settings) -> Celery:
@@ -34,7 +39,9 @@ def make_celery(settings: Settings) -> Celery:
         worker_prefetch_multiplier=1,
         task_soft_time_limit=settings.job_time_limit,
         task_time_limit=settings.job_time_limit + 30,
-        broker_transport_options={"visibility_timeout": settings.visibility_timeout},
+        broker_transport_options={"visibility_timeout": settings.visibility_timeout,
+                                  "priority_steps": [FIRST, LAST],
+                                  "queue_order_strategy": "priority"},
         broker_connection_retry_on_startup=True,
         task_default_queue=settings.queue_name,
         task_ignore_result=True,
