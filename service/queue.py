@@ -201,7 +201,9 @@ class CeleryQueue:
 
     def _publish(self, job_id: str, first: bool) -> None:
         try:
-            self._app.send_task(self._task_name, args=[job_id], queue=self.settings.queue_name,
+            self._app.send_task(self._task_name, args=[job_id],
+                                kwargs={"store": self.store.instance_id},
+                                queue=self.settings.queue_name,
                                 priority=self._priorities[first], retry=False)
         except Exception:  # kombu raises its own and socket errors; the store keeps the job
             log.warning("broker unreachable: job %s stays queued and is published by the "

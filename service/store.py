@@ -15,6 +15,7 @@ Layout::
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -24,7 +25,7 @@ import sqlite3
 import tempfile
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -215,6 +216,18 @@ class Store:
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
             db.executescript(_SCHEMA)
+
+    @functools.cached_property
+    def instance_id(self) -> str:
+        """Random id of this store, made on first use (file ``store-id``): tells apart two
+        data directories, e.g. a worker started with another FNSI_DATA_DIR than its API."""
+        path = self.root / "store-id"
+        if not path.exists():
+            with self.partial_file() as partial:
+                partial.write_text(new_id("store"))
+                with suppress(FileExistsError):  # a concurrent first use won
+                    os.link(partial, path)  # atomic: never a half-written id
+        return path.read_text()
 
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:

@@ -121,7 +121,7 @@ def run_job(job_id: str, settings: Settings, tasks: dict[str, Task],
     claim = store.claim(job_id, lease_seconds=settings.lease_seconds,
                         max_attempts=settings.max_attempts)
     if not claim.run:
-        level = logging.WARNING if claim.reason == "unknown job" else logging.INFO
+        level = logging.ERROR if claim.reason == "unknown job" else logging.INFO
         log.log(level, "job %s not run: %s (FNSI_DATA_DIR %s)", job_id, claim.reason,
                 settings.data_dir)
         return claim
