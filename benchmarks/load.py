@@ -1,21 +1,26 @@
-"""Load on the HTTP API: many small identifications from concurrent clients.
+"""Load on the HTTP API: status polls while jobs compute, and job throughput.
 
-Starts fnsi-service (uvicorn) and ``--workers`` fnsi-worker processes on the Redis at
-FNSI_REDIS_URL (default redis://127.0.0.1:6379, database 13, flushed afterwards), simulates
-one small dataset (2-DOF chain with a cubic spring, 3 periods x 1000 samples), warms
-each worker with one job, then ``--clients`` concurrent clients submit ``--jobs``
-identifications between them and poll each job's status every ``--poll`` seconds until
-all are terminal.
+Two scenarios, each against real processes on this machine:
 
-Reports the throughput (jobs per minute from the first submission to the last job
-finished), the latency of the status polls (p50, p99: the target is p99 < 50 ms while the
-workers are busy), submission latency, and how many jobs finished and failed.
+* ``polls`` (default): fnsi-service with ``--workers`` job processes, on its embedded
+  runner (``--stack embedded``) or on fnsi-worker processes (``--stack celery``), runs
+  as many long simulations as it has workers; while they compute, ``--clients``
+  concurrent clients each get a running job's status (``GET /v1/jobs/{id}``) and list
+  their jobs (``GET /v1/jobs``), pausing ``--poll`` seconds between requests, for
+  ``--seconds``. The target: p99 < 50 ms. ``--job-nice 0`` runs the jobs at the API's
+  priority (FNSI_JOB_NICE=0), for comparison.
+* ``throughput``: simulates one small dataset (2-DOF chain with a cubic spring, 3 periods
+  x 1000 samples), warms each worker with one job, then the clients submit ``--jobs``
+  identifications between them and poll each job's status every ``--poll`` seconds until
+  all are terminal; reports jobs per minute, poll and submission latency.
 
-Last output line: one JSON object {"jobs", "finished", "failed",
-"throughput_jobs_per_min", "poll_p50_ms", "poll_p99_ms"}.
+Celery stacks use the Redis at FNSI_REDIS_URL (default redis://127.0.0.1:6379, database
+13, flushed afterwards). The last output line is one JSON object with the figures
+(``poll_p50_ms``, ``poll_p99_ms``, the load average of the machine, ...).
 
 Run from the repository root (it reuses the test suite's server helpers):
-``.venv/bin/python -m benchmarks.load`` (a few minutes on 2 cores).
+``.venv/bin/python -m benchmarks.load`` (about a minute; ``--scenario throughput``: a few
+minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ import httpx
 import numpy as np
 import redis
 
-from tests.service.servers import Stack, service_env, wait_for_job
+from tests.service.servers import Stack, service_env, wait_for_job, wait_for_progress
 from tests.service.test_simulations import REQUEST as MODEL_SIMULATION
 
 LOAD_REDIS_DB = 13
@@ -41,6 +46,8 @@ TERMINAL = ("succeeded", "failed", "cancelled")
 # Linear identification at a fixed order of the simulated 2-DOF chain: the smallest
 # request that still runs every stage (spectra, decomposition, model, modes, errors, plots).
 IDENTIFICATION = {"band": [5.0, 40.0], "block_rows": 4, "order": 4, "max_order": 4}
+# About 50 s of Newmark integration per job on an idle core, reporting every period.
+LONG_SIMULATION = {**MODEL_SIMULATION, "periods": 1000, "fs_int": 20000.0}
 
 
 def redis_url() -> str:
@@ -48,17 +55,68 @@ def redis_url() -> str:
     return urlunsplit(parts._replace(path=f"/{LOAD_REDIS_DB}"))
 
 
-def start(data_dir: Path, workers: int) -> Stack:
-    """API and workers with production lease and supervisor periods (not the tests')."""
+def start(data_dir: Path, stack_kind: str, workers: int, job_nice: int) -> Stack:
+    """API and job processes with production lease and supervisor periods (not the tests')."""
     data_dir.mkdir(parents=True)
-    env = service_env(data_dir, FNSI_BROKER_URL=redis_url())
+    broker = {"FNSI_BROKER_URL": redis_url()} if stack_kind == "celery" else {}
+    env = service_env(data_dir, **broker)
     env.update(FNSI_LEASE_SECONDS="30", FNSI_SUPERVISOR_INTERVAL="5",
-               FNSI_QUEUE_NAME=f"fnsi-load-{os.getpid()}")
+               FNSI_QUEUE_NAME=f"fnsi-load-{os.getpid()}", FNSI_JOB_NICE=str(job_nice),
+               FNSI_EMBEDDED_WORKERS=str(workers))
     stack = Stack("", data_dir, env, None)
     stack.start_api()
-    for k in range(workers):
-        stack.start_worker(f"load{k}")
+    if stack_kind == "celery":
+        for k in range(workers):
+            stack.start_worker(f"load{k}")
     return stack
+
+
+def percentiles(latencies: list[float]) -> dict[str, float]:
+    """p50 and p99 [ms] of latencies [s]."""
+    return {"poll_p50_ms": round(1e3 * float(np.median(latencies)), 1),
+            "poll_p99_ms": round(1e3 * float(np.percentile(latencies, 99)), 1)}
+
+
+async def poller(url: str, job_ids: list[str], k: int, poll: float, until: float,
+                 polls: list[float]) -> None:
+    """One client: alternately a running job's status and the job listing, ``poll`` s
+    apart, until ``until`` (monotonic clock)."""
+    async with httpx.AsyncClient(base_url=url, timeout=60) as client:
+        await asyncio.sleep(poll * k / 20)  # the clients' requests spread over the pause
+        while time.monotonic() < until:
+            for path in (f"/v1/jobs/{job_ids[k % len(job_ids)]}", "/v1/jobs"):
+                t = time.perf_counter()
+                (await client.get(path)).raise_for_status()
+                polls.append(time.perf_counter() - t)
+                await asyncio.sleep(poll)
+
+
+async def pollers(url: str, job_ids: list[str], clients: int, poll: float, until: float,
+                  polls: list[float]) -> None:
+    """``clients`` concurrent pollers."""
+    await asyncio.gather(*(poller(url, job_ids, k, poll, until, polls) for k in range(clients)))
+
+
+def polls_while_computing(stack: Stack, workers: int, clients: int, poll: float,
+                          seconds: float) -> dict:
+    """The ``polls`` scenario: status polls and listings while ``workers`` jobs compute."""
+    with stack.client() as client:
+        job_ids = [client.post("/v1/simulations", json=LONG_SIMULATION).json()["id"]
+                   for _ in range(workers)]
+        for job_id in job_ids:
+            wait_for_progress(client, job_id, 0.01, timeout=120)
+    polls: list[float] = []
+    load_before = os.getloadavg()
+    until = time.monotonic() + seconds
+    asyncio.run(pollers(stack.url, job_ids, clients, poll, until, polls))
+    load_after = os.getloadavg()
+    with stack.client() as client:
+        states = [client.get(f"/v1/jobs/{j}").json()["state"] for j in job_ids]
+    print(f"{len(polls)} requests in {seconds:g} s; jobs at the end: {states}; load average "
+          f"(1 min) {load_before[0]:.2f} before, {load_after[0]:.2f} after")
+    return {"requests": len(polls), "jobs_still_running": states.count("running"),
+            "load_1min_before": round(load_before[0], 2),
+            "load_1min_after": round(load_after[0], 2), **percentiles(polls)}
 
 
 async def client_run(url: str, dataset_id: str, jobs: int, poll: float,
@@ -108,41 +166,53 @@ async def load(url: str, dataset_id: str, jobs: int, clients: int, poll: float) 
     return {"jobs": jobs, "finished": sum(j["state"] in TERMINAL for j in finals),
             "failed": sum(j["state"] == "failed" for j in finals),
             "throughput_jobs_per_min": round(60 * len(finals) / span, 1),
-            "poll_p50_ms": round(1e3 * float(np.median(polls)), 1),
-            "poll_p99_ms": round(1e3 * float(np.percentile(polls, 99)), 1)}
+            **percentiles(polls)}
+
+
+def throughput(stack: Stack, workers: int, jobs: int, clients: int, poll: float) -> dict:
+    """The ``throughput`` scenario: ``jobs`` small identifications from the clients."""
+    with stack.client() as client:
+        submitted = client.post("/v1/simulations", json=MODEL_SIMULATION).json()
+        dataset_id = wait_for_job(client, submitted["id"])["result"]["dataset_id"]
+        # one job per worker first: the first job of a process pays its imports
+        warm = [client.post("/v1/identifications", json={
+            "dataset_id": dataset_id, **IDENTIFICATION}).json()["id"] for _ in range(workers)]
+        for job_id in warm:
+            wait_for_job(client, job_id)
+    return asyncio.run(load(stack.url, dataset_id, jobs, clients, poll))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--jobs", type=int, default=200)
+    parser.add_argument("--scenario", choices=("polls", "throughput"), default="polls")
+    parser.add_argument("--stack", choices=("embedded", "celery"), default="embedded",
+                        help="embedded runner, or fnsi-worker processes on Redis")
+    parser.add_argument("--workers", type=int, default=2, help="job processes")
     parser.add_argument("--clients", type=int, default=20)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--poll", type=float, default=0.5, help="seconds between poll rounds")
-    parser.add_argument("--worker-nice", type=int, default=0,
-                        help="niceness of the worker processes (0: same priority as the API)")
+    parser.add_argument("--poll", type=float, default=0.5, help="seconds between requests")
+    parser.add_argument("--seconds", type=float, default=30.0,
+                        help="polls scenario: how long the clients poll")
+    parser.add_argument("--jobs", type=int, default=200, help="throughput scenario: jobs")
+    parser.add_argument("--job-nice", type=int, default=10,
+                        help="FNSI_JOB_NICE of the job processes (0: the API's priority)")
     args = parser.parse_args()
+    print(f"{args.scenario} on {args.stack}: {args.clients} clients, {args.workers} job "
+          f"processes at nice {args.job_nice}, requests every {args.poll} s; load average "
+          f"(1 min) {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory(prefix="fnsi-load-") as folder:
-        stack = start(Path(folder) / "data", args.workers)
+        stack = start(Path(folder) / "data", args.stack, args.workers, args.job_nice)
         try:
-            with stack.client() as client:
-                submitted = client.post("/v1/simulations", json=MODEL_SIMULATION).json()
-                dataset_id = wait_for_job(client, submitted["id"])["result"]["dataset_id"]
-                # one job per worker first: the first job of a process pays its imports
-                warm = [client.post("/v1/identifications", json={
-                    "dataset_id": dataset_id, **IDENTIFICATION}).json()["id"]
-                    for _ in range(args.workers)]
-                for job_id in warm:
-                    wait_for_job(client, job_id)
-            for worker in stack.workers:  # the pool processes exist by now
-                os.setpriority(os.PRIO_PGRP, worker.pid, args.worker_nice)
-            print(f"{args.jobs} jobs, {args.clients} clients, {args.workers} workers at nice "
-                  f"{args.worker_nice}, polls every {args.poll} s")
-            summary = asyncio.run(load(stack.url, dataset_id, args.jobs, args.clients,
-                                       args.poll))
+            if args.scenario == "polls":
+                summary = polls_while_computing(stack, args.workers, args.clients, args.poll,
+                                                args.seconds)
+            else:
+                summary = throughput(stack, args.workers, args.jobs, args.clients, args.poll)
         finally:
             stack.stop()
-            redis.Redis.from_url(redis_url()).flushdb()  # the benchmark's own database
-    print(json.dumps(summary))
+            if args.stack == "celery":
+                redis.Redis.from_url(redis_url()).flushdb()  # the benchmark's own database
+    print(json.dumps({"scenario": args.scenario, "stack": args.stack,
+                      "job_nice": args.job_nice, **summary}))
 
 
 if __name__ == "__main__":

@@ -431,19 +431,9 @@ class Study:
         if not self.revisions:
             raise ValueError("the study has no revision yet; create it with Study.create")
         parent = self.revisions[base]
-        elements = list(parent.elements)
-        removed = [self._find(elements, item) for item in remove]
-        elements = [e for k, e in enumerate(elements) if k not in removed]
-        added = [_requested(item) for item in add]
-        for element in added:
-            if element in elements:
-                raise ValueError(f"{element.name} is already in revision {parent.number}; "
-                                 f"remove it first to change its parameters")
-            for name in (element.dof, element.ref):
-                if name is not None and name not in self.output_names:
-                    raise ValueError(f"{element.name} refers to {name!r}, which is not an "
-                                     f"output of the study {list(self.output_names)}")
-        elements.extend(added)
+        elements, added, removed = revised_elements(parent.elements, self.output_names,
+                                                    add=add, remove=remove,
+                                                    parent_number=parent.number)
         new_order = parent.identified_order if order is None else order
         if note is None:
             words = [f"add {e.name}" for e in added]
@@ -451,22 +441,7 @@ class Study:
             if new_order != parent.identified_order:
                 words.append(f"order {new_order}")
             note = ", ".join(words) or "re-identified"
-        return self._append(tuple(elements), new_order, note, progress)
-
-    @staticmethod
-    def _find(elements: list[NonlinearElement], item: NonlinearElement | dict | int) -> int:
-        """Index of an element of a revision, by index, element or JSON."""
-        if isinstance(item, int):
-            if not 0 <= item < len(elements):
-                raise ValueError(f"no element {item} to remove; the revision has "
-                                 f"{len(elements)} elements")
-            return item
-        wanted = _requested(item)
-        for k, element in enumerate(elements):
-            if element == wanted:
-                return k
-        raise ValueError(f"{wanted.name} is not in the revision; its elements are "
-                         f"{[e.name for e in elements]}")
+        return self._append(elements, new_order, note, progress)
 
     # -- diagnosis and curves --------------------------------------------------------------
     def diagnose(self, revision: int = -1, settings: DiagnosisSettings | None = None,
@@ -578,6 +553,73 @@ class Study:
 
 _ERROR_ARRAYS = ("nrmse_percent", "noise_floor_percent", "frequencies", "measured_spectrum",
                  "error_spectrum", "noise_spectrum")
+
+
+def revised_elements(parent: Sequence[NonlinearElement], output_names: Sequence[str], *,
+                     add: Sequence[NonlinearElement | dict] = (),
+                     remove: Sequence[NonlinearElement | dict | int] = (),
+                     parent_number: int | None = None,
+                     ) -> tuple[tuple[NonlinearElement, ...], list[NonlinearElement], list[int]]:
+    """Elements of a revision derived from ``parent``'s (see :meth:`Study.add_revision`).
+
+    Only element parameters are read, so a service can check a revision (its size, its
+    references) before computing it.
+
+    Parameters
+    ----------
+    parent : sequence of NonlinearElement
+        Elements of the base revision.
+    output_names : sequence of str
+        Outputs of the study; added elements may refer only to them.
+    add, remove
+        As in :meth:`Study.add_revision`.
+    parent_number : int, optional
+        Number of the base revision, named in messages.
+
+    Returns
+    -------
+    elements : tuple of NonlinearElement
+        The revision's elements: the parent's without ``remove``, then ``add``.
+    added : list of NonlinearElement
+        The added elements, without coefficients.
+    removed : list of int
+        Indices in ``parent`` of the removed elements.
+
+    Raises
+    ------
+    ValueError
+        An element to remove is not in the parent, one to add already is, or it refers to
+        a channel that is no output.
+    """
+    elements = list(parent)
+    removed = [_find(elements, item) for item in remove]
+    elements = [e for k, e in enumerate(elements) if k not in removed]
+    added = [_requested(item) for item in add]
+    where = "the base revision" if parent_number is None else f"revision {parent_number}"
+    for element in added:
+        if element in elements:
+            raise ValueError(f"{element.name} is already in {where}; remove it first to "
+                             "change its parameters")
+        for name in (element.dof, element.ref):
+            if name is not None and name not in output_names:
+                raise ValueError(f"{element.name} refers to {name!r}, which is not an "
+                                 f"output of the study {list(output_names)}")
+    return (*elements, *added), added, removed
+
+
+def _find(elements: list[NonlinearElement], item: NonlinearElement | dict | int) -> int:
+    """Index of an element of a revision, by index, element or JSON."""
+    if isinstance(item, int):
+        if not 0 <= item < len(elements):
+            raise ValueError(f"no element {item} to remove; the revision has "
+                             f"{len(elements)} elements")
+        return item
+    wanted = _requested(item)
+    for k, element in enumerate(elements):
+        if element == wanted:
+            return k
+    raise ValueError(f"{wanted.name} is not in the revision; its elements are "
+                     f"{[e.name for e in elements]}")
 
 
 def _requested(item: NonlinearElement | dict) -> NonlinearElement:

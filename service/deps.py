@@ -25,17 +25,21 @@ _api_key = APIKeyHeader(
     description="One of the keys in FNSI_API_KEYS; not needed when none are configured.")
 
 
-def get_settings(request: Request) -> Settings:
-    """Settings of the running app."""
+async def get_settings(request: Request) -> Settings:
+    """Settings of the running app.
+
+    This and the other dependencies that do no I/O are coroutines, so FastAPI runs them
+    on the event loop: a plain function goes to the thread pool, and each such hop waits
+    for a CPU slice, which makes status polls slow while jobs compute beside the API."""
     return request.app.state.settings
 
 
-def get_store(request: Request) -> Store:
+async def get_store(request: Request) -> Store:
     """Store of the running app."""
     return request.app.state.store
 
 
-def get_queue(request: Request) -> JobQueue:
+async def get_queue(request: Request) -> JobQueue:
     """Queue that runs the app's jobs."""
     return request.app.state.queue
 

@@ -21,14 +21,17 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from queue import SimpleQueue
 from typing import Protocol
 
 from service.retention import delete_expired_jobs
 from service.settings import Settings
-from service.store import JobState, Store
+from service.store import JobState, StaleJob, Store
+from worker.job_process import become_job_process
 from worker.tasks import execute
 
 log = logging.getLogger("fnsi.service")
@@ -42,8 +45,8 @@ class JobQueue(Protocol):
 
     name: str
 
-    def submit(self, job_id: str) -> None:
-        """Hand over a queued job."""
+    def submit(self, job_id: str, *, first: bool = False) -> None:
+        """Hand over a queued job; ``first``: ahead of new jobs (it was re-queued)."""
 
     def start(self) -> None:
         """Start background machinery."""
@@ -51,8 +54,8 @@ class JobQueue(Protocol):
     def stop(self) -> None:
         """Stop background machinery (running jobs are left to the supervisor)."""
 
-    def resubmit_stale(self) -> list[str]:
-        """Hand over again queued jobs whose hand-over may have been lost; their ids."""
+    def resubmit_stale(self) -> list[StaleJob]:
+        """Hand over again queued jobs whose hand-over may have been lost."""
 
 
 class EmbeddedQueue:
@@ -71,8 +74,12 @@ class EmbeddedQueue:
 
     def _new_pool(self) -> ProcessPoolExecutor:
         # spawn: forking a process that runs threads (uvicorn, this dispatcher) is unsafe.
+        # The pool starts its processes from the dispatcher thread, which lives as long as
+        # the API, so they may ask the kernel to end them with the API.
         return ProcessPoolExecutor(self.settings.embedded_workers,
-                                   mp_context=multiprocessing.get_context("spawn"))
+                                   mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=become_job_process,
+                                   initargs=(os.getpid(), self.settings.job_nice, True))
 
     def start(self) -> None:
         self._pool = self._new_pool()
@@ -90,10 +97,11 @@ class EmbeddedQueue:
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
 
-    def submit(self, job_id: str) -> None:
+    def submit(self, job_id: str, *, first: bool = False) -> None:
+        """Wake the dispatcher (it starts re-queued jobs first in any case)."""
         self._wake.set()
 
-    def resubmit_stale(self) -> list[str]:
+    def resubmit_stale(self) -> list[StaleJob]:
         """Nothing to do: the dispatcher reads queued jobs from the store itself."""
         return []
 
@@ -127,7 +135,10 @@ class EmbeddedQueue:
         free = self.settings.embedded_workers - len(self._running)
         if free <= 0:
             return
-        for job in self.store.jobs_in_state(JobState.QUEUED):
+        # Re-queued jobs (an attempt was lost with its process) first, then oldest first.
+        queued = sorted(self.store.jobs_in_state(JobState.QUEUED),
+                        key=lambda job: (job.attempts == 0, job.seq))
+        for job in queued:
             if free == 0:
                 break
             if job.id in self._running:
@@ -139,41 +150,75 @@ class EmbeddedQueue:
 
 
 class CeleryQueue:
-    """Publishes jobs to fnsi-worker processes through the broker."""
+    """Publishes jobs to fnsi-worker processes through the broker.
+
+    Publishing happens on a thread of its own, so a request never waits for the broker
+    (an unreachable Redis takes seconds to refuse): the job is recorded before it is
+    handed over here, and one whose message could not be sent is published again by the
+    supervisor (:meth:`resubmit_stale`). Re-queued jobs go out at the broker's first
+    priority, new ones at its last, so a job whose worker died runs next.
+    """
 
     name = "celery"
 
     def __init__(self, settings: Settings, store: Store) -> None:
-        from worker.celery_app import TASK_NAME, make_celery
+        from worker.celery_app import FIRST, LAST, TASK_NAME, make_celery
 
         self.settings, self.store = settings, store
         self._app = make_celery(settings)
-        self._task_name = TASK_NAME
+        self._task_name, self._priorities = TASK_NAME, (LAST, FIRST)
+        self._outbox: SimpleQueue[tuple[str, bool] | None] = SimpleQueue()
+        self._waiting: set[str] = set()  # in the outbox or being sent: not sent twice
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._publish_loop, daemon=True,
+                                        name="fnsi-publisher")
 
     def start(self) -> None:
+        self._thread.start()
         # Messages of jobs still queued may have been lost with a broker that restarted
         # without persistence; publishing again is safe because claims are atomic.
         for job in self.store.jobs_in_state(JobState.QUEUED):
-            self.submit(job.id)
+            self.submit(job.id, first=job.attempts > 0)
 
     def stop(self) -> None:
-        """Nothing to stop: workers run independently."""
+        """Stop publishing (jobs not yet published stay queued in the store)."""
+        self._outbox.put(None)
+        self._thread.join(timeout=10)
 
-    def submit(self, job_id: str) -> None:
+    def submit(self, job_id: str, *, first: bool = False) -> None:
+        with self._lock:
+            if job_id in self._waiting:
+                return
+            self._waiting.add(job_id)
+        self._outbox.put((job_id, first))
+
+    def _publish_loop(self) -> None:
+        while (item := self._outbox.get()) is not None:
+            job_id, first = item
+            try:
+                self._publish(job_id, first)
+            finally:
+                with self._lock:
+                    self._waiting.discard(job_id)
+
+    def _publish(self, job_id: str, first: bool) -> None:
         try:
-            self._app.send_task(self._task_name, args=[job_id], queue=self.settings.queue_name,
-                                retry=False)
+            self._app.send_task(self._task_name, args=[job_id],
+                                kwargs={"store": self.store.instance_id},
+                                queue=self.settings.queue_name,
+                                priority=self._priorities[first], retry=False)
         except Exception:  # kombu raises its own and socket errors; the store keeps the job
             log.warning("broker unreachable: job %s stays queued and is published by the "
                         "supervisor when the broker answers", job_id, exc_info=True)
             return
         self.store.mark_enqueued(job_id)
 
-    def resubmit_stale(self) -> list[str]:
-        """Publish again the jobs queued for longer than FNSI_REQUEUE_AFTER."""
+    def resubmit_stale(self) -> list[StaleJob]:
+        """Publish again the jobs never published, or published longer than
+        FNSI_REQUEUE_AFTER ago and still queued."""
         stale = self.store.stale_queued(self.settings.requeue_after)
-        for job_id in stale:
-            self.submit(job_id)
+        for job in stale:
+            self.submit(job.id, first=job.attempts > 0)
         return stale
 
 
@@ -196,10 +241,14 @@ class Supervisor:
         """One pass: hand re-queued jobs to the queue again."""
         for job_id in self.store.reap_lost(self.settings.max_attempts):
             log.warning("job %s lost its worker; re-queued", job_id)
-            self.queue.submit(job_id)
-        for job_id in self.queue.resubmit_stale():
-            log.warning("job %s still queued after %g s; published again", job_id,
-                        self.settings.requeue_after)
+            self.queue.submit(job_id, first=True)
+        for job in self.queue.resubmit_stale():
+            if job.published_ago is None:
+                log.warning("job %s, queued %.0f s ago, is not published yet (broker "
+                            "unreachable); publishing again", job.id, job.created_ago)
+            else:
+                log.warning("job %s still queued %.0f s after it was published; published "
+                            "again", job.id, job.published_ago)
         for job_id in delete_expired_jobs(self.settings, self.store):
             log.info("job %s deleted: finished more than FNSI_JOB_RETENTION_DAYS ago", job_id)
 

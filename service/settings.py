@@ -72,6 +72,12 @@ class Settings(BaseSettings):
     queue_name: str = Field("fnsi", description="Celery queue the API and workers share; "
                             "deployments sharing a Redis database need different names.")
 
+    # -- job execution (issue 19: job processes, broker outages, requeue order) --------------
+    job_nice: int = Field(
+        10, ge=0, le=19, description="Niceness added to job processes (embedded runner and "
+        "fnsi-worker pool), so the API on the same machine stays responsive while jobs "
+        "compute; 0: the API's priority.", examples=[10])
+
     @field_validator("api_keys", mode="before")
     @classmethod
     def _split_keys(cls, value: object) -> object:

@@ -21,6 +21,7 @@ Layout::
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -135,6 +136,16 @@ class JobRecord:
 
 
 @dataclass(frozen=True)
+class StaleJob:
+    """A queued job whose hand-over to the queue may have been lost (ages in seconds)."""
+
+    id: str
+    attempts: int
+    created_ago: float
+    published_ago: float | None  # None: never published
+
+
+@dataclass(frozen=True)
 class BatchRecord:
     """Jobs submitted together; ``idempotency_key`` makes a retried submission a no-op."""
 
@@ -222,6 +233,18 @@ class Store:
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
             db.executescript(_SCHEMA)
+
+    @functools.cached_property
+    def instance_id(self) -> str:
+        """Random id of this store, made on first use (file ``store-id``): tells apart two
+        data directories, e.g. a worker started with another FNSI_DATA_DIR than its API."""
+        path = self.root / "store-id"
+        if not path.exists():
+            with self.partial_file() as partial:
+                partial.write_text(new_id("store"))
+                with suppress(FileExistsError):  # a concurrent first use won
+                    os.link(partial, path)  # atomic: never a half-written id
+        return path.read_text()
 
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:
@@ -455,14 +478,19 @@ class Store:
         with self._transaction() as db:
             db.execute("UPDATE jobs SET enqueued_at = ? WHERE id = ?", (time.time(), job_id))
 
-    def stale_queued(self, older_than: float) -> list[str]:
-        """Queued jobs last handed to the queue more than ``older_than`` seconds ago
-        (their message may be lost: broker restarted, or consumed by a foreign worker)."""
+    def stale_queued(self, older_than: float) -> list[StaleJob]:
+        """Queued jobs never handed to the queue (the broker was unreachable), or last
+        handed over more than ``older_than`` seconds ago (their message may be lost:
+        broker restarted, or consumed by a foreign worker)."""
+        now = time.time()
         with self._connect() as db:
-            rows = db.execute("SELECT id FROM jobs WHERE state = ? AND (enqueued_at IS NULL "
-                              "OR enqueued_at < ?) ORDER BY seq",
-                              (JobState.QUEUED, time.time() - older_than))
-            return [r["id"] for r in rows.fetchall()]
+            rows = db.execute("SELECT id, attempts, created_at, enqueued_at FROM jobs "
+                              "WHERE state = ? AND (enqueued_at IS NULL OR enqueued_at < ?) "
+                              "ORDER BY seq", (JobState.QUEUED, now - older_than)).fetchall()
+        return [StaleJob(r["id"], r["attempts"],
+                         now - datetime.fromisoformat(r["created_at"]).timestamp(),
+                         None if r["enqueued_at"] is None else now - r["enqueued_at"])
+                for r in rows]
 
     def jobs_in_state(self, state: JobState) -> list[JobRecord]:
         """Every job in ``state``, oldest first (used to resume after a restart)."""

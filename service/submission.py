@@ -14,16 +14,15 @@ from service.store import JobRecord, Store
 from worker.identifications import settings_of
 
 
-def check_dimensions(summary: dict, request: IdentificationRequest,
-                     memory_limit_mb: float) -> None:
-    """The library's checks of an identification against the dataset's shape
-    (:func:`fnsi.identification.check_settings`), made on the layout in the dataset
+def check_dimensions(summary: dict, request: dict, memory_limit_mb: float) -> None:
+    """The library's checks of an identification (request JSON) against the dataset's
+    shape (:func:`fnsi.identification.check_settings`), made on the layout in the dataset
     summary so the API never loads the arrays (ValueError naming the fix)."""
     layout = Layout(fs=summary["fs"], periods=summary["periods"],
                     period_length=summary["period_length"],
                     n_realisations=summary["realisations"],
                     input_names=tuple(summary["inputs"]), output_names=tuple(summary["outputs"]))
-    check_settings(layout, settings_of(request.model_dump(mode="json"), memory_limit_mb))
+    check_settings(layout, settings_of(request, memory_limit_mb))
 
 
 def check_request(store: Store, owner: str, kind: str, request: BaseModel,
@@ -51,7 +50,7 @@ def check_request(store: Store, owner: str, kind: str, request: BaseModel,
             raise ProblemError(422, f"{field}: dataset {dataset.id} has no channel {name!r} "
                                f"there; valid names are {valid}")
     try:
-        check_dimensions(dataset.summary, request, memory_limit_mb)
+        check_dimensions(dataset.summary, request.model_dump(mode="json"), memory_limit_mb)
     except ValueError as err:
         raise ProblemError(422, f"{where or 'request: '}{err}") from None
 

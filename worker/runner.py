@@ -24,6 +24,7 @@ from typing import Any
 
 from service.settings import Settings
 from service.store import Claim, JobRecord, JobState, Store
+from worker.job_process import exit_if_orphaned
 
 log = logging.getLogger("fnsi.worker")
 
@@ -77,6 +78,7 @@ class Attempt:
 
     def _beat(self) -> None:
         while not self._stop.wait(self.settings.lease_seconds / 4):
+            exit_if_orphaned(self.job_id)  # before renewing: an orphan's lease must lapse
             if self.store.report(self.job_id, lease_seconds=self.settings.lease_seconds):
                 self.cancelled.set()
 
@@ -119,7 +121,7 @@ def run_job(job_id: str, settings: Settings, tasks: dict[str, Task],
     claim = store.claim(job_id, lease_seconds=settings.lease_seconds,
                         max_attempts=settings.max_attempts)
     if not claim.run:
-        level = logging.WARNING if claim.reason == "unknown job" else logging.INFO
+        level = logging.ERROR if claim.reason == "unknown job" else logging.INFO
         log.log(level, "job %s not run: %s (FNSI_DATA_DIR %s)", job_id, claim.reason,
                 settings.data_dir)
         return claim

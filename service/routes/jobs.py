@@ -38,7 +38,7 @@ def list_jobs(
 
 
 @router.get("/{job_id}", response_model=Job, summary="Get a job")
-def get_job(job: OwnJobDep) -> Job:
+async def get_job(job: OwnJobDep) -> Job:
     """State, progress, result or error of a job."""
     return Job.of(job)
 

@@ -6,6 +6,8 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Path, Response
 
+from fnsi.nonlinear import NonlinearElement
+from fnsi.study import revised_elements
 from service.deps import ApiKeyDep, QueueDep, SettingsDep, StoreDep, owned
 from service.pagination import NOT_OURS, PageCursor, PageLimit, cursor_position, split_page
 from service.problems import ERROR_RESPONSES, ProblemError
@@ -27,7 +29,7 @@ from service.schemas.studies import (
 )
 from service.store import DatasetRecord, JobRecord, JobState, Store
 from service.study_store import STUDY_ID, StudyRecord, StudyStore
-from service.submission import check_request
+from service.submission import check_dimensions, check_request
 
 router = APIRouter(prefix="/v1/studies", tags=["studies"], responses=ERROR_RESPONSES)
 _CONFLICT = {409: ERROR_RESPONSES[422] | {"description": "Conflict"}}
@@ -87,6 +89,56 @@ def _check_elements(record: StudyRecord, store: Store, request: RevisionRequest)
             if name is not None and name not in outputs:
                 raise ProblemError(422, f"add[{k}].{field}: {name!r} is not an output of the "
                                    f"study; valid names are {outputs}")
+
+
+def _revision_settings(studies: StudyStore, record: StudyRecord, outputs: list[str],
+                       request: RevisionRequest,
+                       ) -> tuple[tuple[NonlinearElement, ...], int | str] | None:
+    """Elements and order of a requested revision, as far as known now. When its base is
+    still to come (revisions requested before it are pending), only the added elements:
+    the revision holds at least those. None when the request cannot apply to its base (the
+    job says why, keeping the history)."""
+    snapshot = studies.snapshot(record.id)
+    revisions = snapshot.study["revisions"] if snapshot is not None else []
+    pending = any(j.state in (JobState.QUEUED, JobState.RUNNING) and j.kind != "study_diagnosis"
+                  for j in studies.jobs(record.id, record.owner))
+    base = request.base if request.base is not None else (None if pending else -1)
+    add = [e.model_dump(mode="json") for e in request.add]
+    if base is None or base >= len(revisions):
+        return (tuple(NonlinearElement.from_json(e) for e in add),
+                request.order or record.request["order"])
+    parent = revisions[base]
+    remove = [r if isinstance(r, int) else r.model_dump(mode="json") for r in request.remove]
+    try:
+        elements, _, _ = revised_elements(
+            [NonlinearElement.from_json(e) for e in parent["elements"]], outputs, add=add,
+            remove=remove, parent_number=parent["number"])
+    except ValueError:
+        return None
+    return elements, parent["identified_order"] if request.order is None else request.order
+
+
+def _check_size(studies: StudyStore, record: StudyRecord, store: Store, request: RevisionRequest,
+                memory_limit_mb: float) -> None:
+    """Refuse now (422), as an identification is, a revision FNSI cannot compute on the
+    study's data: working memory above FNSI_MEMORY_LIMIT_MB, too many basis functions
+    for the data."""
+    dataset = store.get_dataset(record.request["dataset_id"])
+    if dataset is None:  # estimation data deleted: the job says so
+        return
+    revision = _revision_settings(studies, record, record.request["outputs"]
+                                  or dataset.summary["outputs"], request)
+    if revision is None:
+        return
+    elements, order = revision
+    try:
+        check_dimensions(dataset.summary, {**record.request, "order": order,
+                                           "elements": [e.to_json() for e in elements]},
+                         memory_limit_mb)
+    except ValueError as err:
+        raise ProblemError(422, f"add: the revision (elements {[e.name for e in elements]}, "
+                           f"order {order}) cannot be identified on the study's data: "
+                           f"{err}") from None
 
 
 def _check_alive(studies: StudyStore, record: StudyRecord) -> None:
@@ -201,12 +253,13 @@ def get_study(record: OwnStudyDep, store: StoreDep, studies: StudiesDep) -> Stud
 @router.post("/{study_id}/revisions", response_model=Job, status_code=202,
              summary="Add a revision", responses=_CONFLICT)
 def create_revision(request: RevisionRequest, record: OwnStudyDep, store: StoreDep,
-                    queue: QueueDep, studies: StudiesDep) -> Job:
+                    queue: QueueDep, studies: StudiesDep, settings: SettingsDep) -> Job:
     """Queue a new revision: add or remove nonlinear elements, change the order. Its
     result names the revision number and the error history; its artefacts are the
     revision's figures. Revisions of a study run one at a time, in the order requested."""
     _check_alive(studies, record)
     _check_elements(record, store, request)
+    _check_size(studies, record, store, request, settings.memory_limit_mb)
     return Job.of(_submit(store, queue, record, "study_revision",
                           request.model_dump(mode="json")))
 

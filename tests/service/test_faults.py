@@ -8,6 +8,7 @@ API killed in embedded mode: tests/service/test_restart.py.)
 from __future__ import annotations
 
 import io
+import re
 import signal
 import subprocess
 import time
@@ -114,6 +115,34 @@ def test_broker_restart_with_jobs_running_and_queued_loses_none(private_stack, b
         finals = assert_all_succeeded(client, accepted)
         assert finals[0]["attempts"] == 1  # the running attempt was never interrupted
         assert client.get(f"/v1/jobs/{done}").json() == before
+
+
+def test_a_submission_while_the_broker_is_down_answers_at_once_and_logs_its_real_age(
+        private_stack, broker):
+    """Redis is down: the POST is answered without waiting for the broker, the supervisor's
+    log says how long ago the job was queued (not FNSI_REQUEUE_AFTER), and the job runs
+    once the broker is back."""
+    with private_stack.client() as client:
+        broker.kill()
+        try:
+            submitted = time.monotonic()
+            response = client.post("/v1/simulations", json={**MODEL_SIMULATION, "seed": 9})
+            took = time.monotonic() - submitted
+            time.sleep(3.0)  # six supervisor passes with the broker down
+        finally:
+            broker.start()
+        assert response.status_code == 202, response.text
+        # Recording the job takes milliseconds; an unreachable Redis took 6 s to refuse.
+        assert took < 1.0, f"the POST waited {took:.1f} s for the broker"
+        job_id = response.json()["id"]
+        assert_all_succeeded(client, [job_id])
+        queued_for = time.monotonic() - submitted
+    log = (private_stack.data_dir.parent / "api.log").read_text()
+    ages = [float(age) for age in re.findall(
+        rf"job {job_id}, queued (\d+) s ago, is not published yet", log)]
+    assert ages, "the supervisor did not report the unpublished job"
+    # each pass states the age at that pass: growing, never more than the job waited
+    assert len(set(ages)) > 1 and max(ages) <= queued_for + 1.0, (ages, queued_for)
 
 
 def test_api_restart_with_jobs_on_the_worker_loses_none(private_stack):

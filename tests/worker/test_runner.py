@@ -108,9 +108,13 @@ def test_heartbeat_keeps_a_silent_task_alive(store, settings):
     assert store.get_job(job.id).state == JobState.SUCCEEDED
 
 
-def test_queued_jobs_whose_message_may_be_lost_are_found(store):
+def test_queued_jobs_whose_message_may_be_lost_are_found_with_their_real_age(store):
     job = store.create_job("me", "simulation", {})
-    assert store.stale_queued(older_than=60) == [job.id]  # never handed over
+    time.sleep(0.2)
+    (never,) = store.stale_queued(older_than=60)  # never handed over
+    assert never.id == job.id and never.published_ago is None
+    assert 0.2 <= never.created_ago < 5
     store.mark_enqueued(job.id)
     assert store.stale_queued(older_than=60) == []
-    assert store.stale_queued(older_than=0) == [job.id]
+    (published,) = store.stale_queued(older_than=0)
+    assert published.id == job.id and 0 <= published.published_ago < 5

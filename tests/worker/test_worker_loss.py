@@ -43,3 +43,4 @@ def test_killed_pool_process_job_reruns_on_the_same_worker(celery_stack):
         final = wait_for_job(client, job_id, timeout=120)
         assert final["state"] == "succeeded", final
         assert final["attempts"] == 2
+
