@@ -670,11 +670,10 @@ class NonlinearElement:
         return out
 
     @classmethod
-    def from_json(cls, d: dict) -> NonlinearElement:
-        """Element from the JSON object of :meth:`to_json`: unknown keys, and parameters of
-        other kinds (even at their defaults), are rejected."""
-        if not isinstance(d, dict) or "kind" not in d or "dof" not in d:
-            raise ValueError("a nonlinear element needs at least {'kind': ..., 'dof': ...}")
+    def check_keys(cls, d: dict) -> None:
+        """ValueError naming the keys of the JSON object ``d`` (with a ``kind``) that are
+        no field of an element, or that are parameters of another kind: given, they are
+        refused even at their defaults, never silently ignored."""
         allowed = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - allowed)
         if unknown:
@@ -683,6 +682,14 @@ class NonlinearElement:
         kind = _kind(d["kind"])
         _refuse_foreign(set(d) - {"kind", "dof", "ref", "coefficients",
                                   *KIND_PARAMETERS[kind]}, kind)
+
+    @classmethod
+    def from_json(cls, d: dict) -> NonlinearElement:
+        """Element from the JSON object of :meth:`to_json` (keys checked by
+        :meth:`check_keys`)."""
+        if not isinstance(d, dict) or "kind" not in d or "dof" not in d:
+            raise ValueError("a nonlinear element needs at least {'kind': ..., 'dof': ...}")
+        cls.check_keys(d)
         kwargs = dict(d)
         for name in ("breakpoints", "knots", "coefficients"):
             if kwargs.get(name) is not None:

@@ -6,7 +6,6 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
-    BaseModel,
     ConfigDict,
     Discriminator,
     Field,
@@ -19,6 +18,7 @@ from pydantic import (
 from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import check_band
 from fnsi.structure import StructuralModel
+from service.schemas.base import RequestModel
 from service.schemas.identifications import NonlinearElementSpec
 
 MAX_SAMPLES = 20_000_000
@@ -36,7 +36,7 @@ def _check_size(samples: int, fs: float, fs_int: float) -> None:
         raise ValueError(f"fs_int / fs = {fs_int / fs:g}; at most {MAX_INTEGRATION_FACTOR}")
 
 
-class PresetSimulation(BaseModel):
+class PresetSimulation(RequestModel):
     """Simulated test of the SmallSat reference structure (DESIGN.md section 4).
 
     ``single``: 100 N RMS at NC2w_Z (paper Table 3); ``multi``: 200 N RMS at the wheel W
@@ -44,7 +44,7 @@ class PresetSimulation(BaseModel):
     nonlinear coefficients, contact counts) is the job artefact ``truth.json``.
     """
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+    model_config = ConfigDict(json_schema_extra={"examples": [
         {"preset": "single", "periods": 3, "samples_per_period": 2500, "seed": 1}]})
 
     preset: Literal["single", "multi"] = Field(description="Excitation case of the paper.")
@@ -73,10 +73,8 @@ class PresetSimulation(BaseModel):
         return self
 
 
-class StructuralModelSpec(BaseModel):
+class StructuralModelSpec(RequestModel):
     """Linear matrices and nonlinear elements of a structure (Eq. 1-2)."""
-
-    model_config = ConfigDict(extra="forbid")
 
     M: list[list[StrictFloat]] = Field(description="Mass matrix (r x r) [kg].",
                                  examples=[[[1.0, 0.0], [0.0, 1.0]]])
@@ -113,10 +111,8 @@ class StructuralModelSpec(BaseModel):
             tuple(NonlinearElement.from_json(e.model_dump(mode="json")) for e in self.elements))
 
 
-class InputSpec(BaseModel):
+class InputSpec(RequestModel):
     """One excitation force along a direction of the DOFs."""
-
-    model_config = ConfigDict(extra="forbid")
 
     name: str | None = Field(None, description="Input channel name; default F_<dofs>.",
                              examples=["F_x1"])
@@ -126,10 +122,8 @@ class InputSpec(BaseModel):
     rms: StrictFloat = Field(gt=0, description="RMS of the force [N].", examples=[10.0])
 
 
-class ExcitationSpec(BaseModel):
+class ExcitationSpec(RequestModel):
     """Periodic excitation: a random-phase multisine or periodic noise per input."""
-
-    model_config = ConfigDict(extra="forbid")
 
     signal: Literal["multisine", "periodic_noise"] = Field(
         "multisine", description="Flat-spectrum random-phase multisine, or periodic "
@@ -147,11 +141,9 @@ class ExcitationSpec(BaseModel):
     inputs: list[InputSpec] = Field(min_length=1, max_length=100, description="The forces.")
 
 
-class ModelSimulation(BaseModel):
+class ModelSimulation(RequestModel):
     """Simulated periodic test of any structure: Newmark integration at ``fs_int``,
     decimation to ``fs``, band-limited measurement noise."""
-
-    model_config = ConfigDict(extra="forbid")
 
     model: StructuralModelSpec = Field(description="The structure.")
     excitation: ExcitationSpec = Field(description="The inputs.")
