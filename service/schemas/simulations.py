@@ -15,8 +15,11 @@ from pydantic import (
     model_validator,
 )
 
+from fnsi.acquisition import check_timing
+from fnsi.excitation import excited_lines
+from fnsi.measurement import check_channels
 from fnsi.nonlinear import NonlinearElement
-from fnsi.spectra import check_band
+from fnsi.smallsat import check_preset
 from fnsi.structure import StructuralModel
 from service.schemas.base import RequestModel
 from service.schemas.identifications import NonlinearElementSpec
@@ -48,8 +51,9 @@ class PresetSimulation(RequestModel):
         {"preset": "single", "periods": 3, "samples_per_period": 2500, "seed": 1}]})
 
     preset: Literal["single", "multi"] = Field(description="Excitation case of the paper.")
-    periods: StrictInt = Field(8, ge=1, le=1000, description="Periods simulated (the first ones "
-                         "hold the transient).", examples=[8])
+    periods: StrictInt = Field(8, ge=1, le=1000, description="Periods simulated; the first two "
+                         "hold the transient and are left out of the noise reference and "
+                         "the contact counts, so give at least 3.", examples=[8])
     samples_per_period: StrictInt = Field(30000, ge=16, le=10_000_000, description="Samples per "
                                     "period at the 2.5 kHz output rate.", examples=[30000])
     rms: StrictFloat | None = Field(None, gt=0, description="Excitation RMS [N]; default the "
@@ -70,6 +74,15 @@ class PresetSimulation(RequestModel):
     @model_validator(mode="after")
     def _bounded(self) -> PresetSimulation:
         _check_size(self.periods * self.samples_per_period, self.fs, self.fs_int)
+        return self
+
+    @model_validator(mode="after")
+    def _runnable(self) -> PresetSimulation:
+        # The library owns the rules of a preset run (its transient periods, its channels,
+        # the rates); its message says what to change.
+        check_preset(self.preset, periods=self.periods,
+                     samples_per_period=self.samples_per_period, outputs=self.outputs,
+                     fs=self.fs, fs_int=self.fs_int)
         return self
 
 
@@ -186,12 +199,12 @@ class ModelSimulation(RequestModel):
         if self.noise_reference is not None and self.noise_reference not in outputs:
             raise ValueError(f"noise_reference: {self.noise_reference!r} is not measured; "
                              f"outputs are {outputs}")
-        factor = round(self.fs_int / self.fs)
-        if factor < 1 or abs(factor * self.fs - self.fs_int) > 1e-9 * self.fs_int:
-            raise ValueError(f"fs_int={self.fs_int} Hz must be an integer multiple of "
-                             f"fs={self.fs} Hz")
+        check_channels(outputs, tuple(dofs), "output")
+        e = self.excitation
+        check_timing(self.fs, self.fs_int, e.samples_per_period, self.periods,
+                     self.discard_periods)
         try:
-            check_band(self.excitation.band, self.fs)
+            excited_lines(e.samples_per_period, self.fs, e.band)
         except ValueError as err:
             raise ValueError(f"excitation.band: {err}") from None
         return self
