@@ -231,7 +231,8 @@ def check_timing(fs: float, fs_int: float, samples_per_period: int, periods: int
     int
         The rate ratio D = fs_int / fs.
     """
-    factor = round(fs_int / fs)
+    ratio = fs_int / fs
+    factor = round(ratio) if np.isfinite(ratio) else 0
     if factor < 1 or abs(factor * fs - fs_int) > 1e-9 * fs_int:
         raise ValueError(f"fs_int={fs_int:g} Hz must be an integer multiple of fs={fs:g} Hz")
     if samples_per_period < 2 * FIR_HALF:
