@@ -539,7 +539,28 @@ def smallsat_model(params: SmallSatParameters | None = None) -> StructuralModel:
 def check_preset(name: str, *, periods: int, samples_per_period: int,
                  outputs: tuple[str, ...] | None, fs: float, fs_int: float) -> Preset:
     """The preset called ``name``, after checking that :func:`simulate_preset` can run it
-    with these arguments (ValueError saying what to change); parameters as there."""
+    with these arguments; parameters as there.
+
+    Cheap (no simulation): a service refuses with it, at submission, a run that could
+    only fail (too few periods after the preset's transient, unknown or repeated outputs,
+    rates or a period that cannot carry the preset's band).
+
+    Returns
+    -------
+    Preset
+
+    Raises
+    ------
+    ValueError
+        Naming the preset and what to change.
+
+    Examples
+    --------
+    >>> check_preset("single", periods=2, samples_per_period=2500, outputs=None,
+    ...              fs=2500.0, fs_int=20000.0)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: preset 'single': periods=2 leaves no period after the 2 transient ...
+    """
     if name not in PRESETS:
         raise ValueError(f"unknown SmallSat preset {name!r}; use one of {list(PRESETS)}")
     preset = PRESETS[name]
@@ -608,10 +629,10 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
 
     Examples
     --------
-    >>> m, truth = simulate_preset("single", periods=2, samples_per_period=2500,
+    >>> m, truth = simulate_preset("single", periods=3, samples_per_period=2500,
     ...                            outputs=("NC2w_Z", "NC2b_Z"))   # doctest: +SKIP
     >>> m.input_names, m.output_names, m.y.shape                   # doctest: +SKIP
-    (('F_NC2w_Z',), ('NC2w_Z', 'NC2b_Z'), (1, 5000, 2))
+    (('F_NC2w_Z',), ('NC2w_Z', 'NC2b_Z'), (1, 7500, 2))
     """
     preset = check_preset(name, periods=periods, samples_per_period=samples_per_period,
                           outputs=outputs, fs=fs, fs_int=fs_int)
