@@ -230,6 +230,11 @@ def check_timing(fs: float, fs_int: float, samples_per_period: int, periods: int
     -------
     int
         The rate ratio D = fs_int / fs.
+
+    Examples
+    --------
+    >>> check_timing(2500.0, 20000.0, samples_per_period=2500, periods=3, discard_periods=2)
+    8
     """
     ratio = fs_int / fs
     factor = round(ratio) if np.isfinite(ratio) else 0

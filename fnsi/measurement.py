@@ -64,6 +64,12 @@ def check_channels(chosen, valid: tuple[str, ...], kind: str) -> None:
         Names of the channels there are.
     kind : str
         What they are, for the message (``"input"``, ``"output"``).
+
+    Examples
+    --------
+    >>> check_channels(("y1", "y1"), ("y0", "y1"), "output")
+    Traceback (most recent call last):
+    ValueError: outputs ['y1'] are chosen more than once; name each output channel once
     """
     for name in chosen:
         _index(valid, name, kind)
