@@ -62,8 +62,9 @@ class PresetSimulation(RequestModel):
     noise_percent: StrictFloat = Field(0.5, ge=0, le=100, description="Measurement noise RMS in "
                                  "% of the RMS response at the bracket tip.", examples=[0.5])
     outputs: list[str] | None = Field(
-        None, min_length=1, description="Measured DOFs, e.g. NC2w_Z; default all 39 "
-        "(13 nodes x X, Y, Z).", examples=[["NC2w_Z", "NC2b_Z", "W_Z"]])
+        None, min_length=1, description="Measured DOFs of the SmallSat model, each once, "
+        "e.g. NC2w_Z; default the 39 of the paper (13 nodes x X, Y, Z).",
+        examples=[["NC2w_Z", "NC2b_Z", "W_Z"]])
     quantity: Literal["displacement", "velocity", "acceleration"] = Field(
         "displacement", description="What the outputs measure.")
     fs: StrictFloat = Field(2500.0, gt=0, description="Measurement sampling rate [Hz].")
