@@ -83,7 +83,7 @@ from typing import Literal
 import numpy as np
 
 from fnsi.acquisition import Truth, acquire, check_timing
-from fnsi.excitation import Excitation, excited_lines, periodic_noise
+from fnsi.excitation import Excitation, excited_lines, multisine, periodic_noise
 from fnsi.measurement import Measurement, check_channels
 from fnsi.nonlinear import NonlinearElement
 from fnsi.structure import StructuralModel
@@ -580,6 +580,7 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
                     quantity: str = "displacement", fs: float = 2500.0,
                     fs_int: float = 20000.0,
                     parameters: SmallSatParameters | None = None,
+                    signal: Literal["periodic-noise", "random-odd"] = "periodic-noise",
                     progress: Callable[[float, str], None] | None = None,
                     ) -> tuple[Measurement, Truth]:
     """Simulate one of the paper's SmallSat tests (Section IV.A or IV.C).
@@ -615,6 +616,10 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
         Measurement and integration sampling rates [Hz].
     parameters : SmallSatParameters, optional
         A variant of the structure (sensitivity studies); default the tuned parameters.
+    signal : {"periodic-noise", "random-odd"}
+        The paper's periodic noise, or a random-odd multisine of the same RMS (odd lines
+        only, one left out in four): its non-excited lines tell odd nonlinear distortions
+        from even ones (:mod:`fnsi.distortion`).
     progress : callable(fraction, message), optional
         Progress callback of the simulation; may raise to cancel.
 
@@ -639,9 +644,13 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
     rms_n = preset.rms_n if rms is None else float(rms)
     outputs = MEASURED_DOFS if outputs is None else tuple(outputs)
     excitation_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
-    signal = periodic_noise(samples_per_period, fs, preset.band, rms_n / FORCE_UNIT_N,
-                            seed=int(excitation_seed))
-    excitation = Excitation.along(signal, fs, preset.directions)
+    if signal not in ("periodic-noise", "random-odd"):
+        raise ValueError(f"signal must be 'periodic-noise' or 'random-odd'; got {signal!r}")
+    make = periodic_noise if signal == "periodic-noise" else (
+        lambda *a, **k: multisine(*a, lines="odd", detection=4, **k))
+    force = make(samples_per_period, fs, preset.band, rms_n / FORCE_UNIT_N,
+                 seed=int(excitation_seed))
+    excitation = Excitation.along(force, fs, preset.directions)
     simulated = outputs if BRACKET_TIP in outputs else (*outputs, BRACKET_TIP)
     measurement, truth = acquire(
         smallsat_model(parameters), excitation, fs=fs, fs_int=fs_int, periods=periods,

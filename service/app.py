@@ -9,6 +9,7 @@ from typing import Any
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 from fastapi.routing import APIRoute
+from fastapi_offline import FastAPIOffline
 
 from service import problems
 from service.limits import BodyLimitMiddleware
@@ -92,7 +93,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             supervisor.stop()
             queue.stop()
 
-    app = FastAPI(
+    # /docs and /redoc with Swagger UI and ReDoc served from a package, no CDN or web
+    # fonts: lab networks often have no internet.
+    app = FastAPIOffline(
         title="fnsi-service",
         description="Frequency-domain nonlinear subspace identification (FNSI) of nonlinear "
         "structures: upload measurements, simulate tests, identify models, fetch plots. "
