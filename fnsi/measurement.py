@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Literal, get_args
@@ -73,7 +74,7 @@ def check_channels(chosen, valid: tuple[str, ...], kind: str) -> None:
     """
     for name in chosen:
         _index(valid, name, kind)
-    repeated = sorted({name for name in chosen if list(chosen).count(name) > 1})
+    repeated = sorted(name for name, count in Counter(chosen).items() if count > 1)
     if repeated:
         raise ValueError(f"{kind}s {repeated} are chosen more than once; name each {kind} "
                          "channel once")

@@ -83,7 +83,7 @@ from typing import Literal
 import numpy as np
 
 from fnsi.acquisition import Truth, acquire, check_timing
-from fnsi.excitation import Excitation, excited_lines, multisine, periodic_noise
+from fnsi.excitation import Excitation, excited_line_range, multisine, periodic_noise
 from fnsi.measurement import Measurement, check_channels
 from fnsi.nonlinear import NonlinearElement
 from fnsi.structure import StructuralModel
@@ -566,7 +566,7 @@ def check_preset(name: str, *, periods: int, samples_per_period: int,
     preset = PRESETS[name]
     try:
         check_timing(fs, fs_int, samples_per_period, periods, preset.discard_periods)
-        excited_lines(samples_per_period, fs, preset.band)
+        excited_line_range(samples_per_period, fs, preset.band)
         check_channels(outputs or (), DOF_NAMES, "output")
     except ValueError as err:
         raise ValueError(f"preset {name!r}: {err}") from None

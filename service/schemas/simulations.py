@@ -16,7 +16,7 @@ from pydantic import (
 )
 
 from fnsi.acquisition import check_timing
-from fnsi.excitation import excited_lines
+from fnsi.excitation import excited_line_range
 from fnsi.measurement import check_channels
 from fnsi.nonlinear import NonlinearElement
 from fnsi.smallsat import check_preset
@@ -205,7 +205,7 @@ class ModelSimulation(RequestModel):
         check_timing(self.fs, self.fs_int, e.samples_per_period, self.periods,
                      self.discard_periods)
         try:
-            excited_lines(e.samples_per_period, self.fs, e.band)
+            excited_line_range(e.samples_per_period, self.fs, e.band)
         except ValueError as err:
             raise ValueError(f"excitation.band: {err}") from None
         return self
