@@ -211,6 +211,45 @@ def _count_exceedances(element: NonlinearElement, x: np.ndarray) -> int:
     return int(np.count_nonzero((x > gap_positive) | (x < -gap_negative)))
 
 
+def check_timing(fs: float, fs_int: float, samples_per_period: int, periods: int,
+                 discard_periods: int) -> int:
+    """The integration factor of a simulated test, after the checks of its timing.
+
+    Parameters
+    ----------
+    fs, fs_int : float
+        Measurement and integration rates [Hz]; fs_int must be an integer multiple of fs
+        (each period is integrated at fs_int and decimated exactly, step 2).
+    samples_per_period : int
+        Samples per period at fs; at least 2 FIR_HALF, the first period's filter.
+    periods, discard_periods : int
+        Periods simulated, and leading transient periods left out of the noise reference
+        and the exceedance counts: at least one period must remain.
+
+    Returns
+    -------
+    int
+        The rate ratio D = fs_int / fs.
+
+    Examples
+    --------
+    >>> check_timing(2500.0, 20000.0, samples_per_period=2500, periods=3, discard_periods=2)
+    8
+    """
+    ratio = fs_int / fs
+    factor = round(ratio) if np.isfinite(ratio) else 0
+    if factor < 1 or abs(factor * fs - fs_int) > 1e-9 * fs_int:
+        raise ValueError(f"fs_int={fs_int:g} Hz must be an integer multiple of fs={fs:g} Hz")
+    if samples_per_period < 2 * FIR_HALF:
+        raise ValueError(f"a period of {samples_per_period} samples is too short; give at "
+                         f"least {2 * FIR_HALF}")
+    if int(periods) != periods or periods < 1 or not 0 <= discard_periods < periods:
+        raise ValueError(f"periods={periods} leaves no period after the {discard_periods} "
+                         f"transient periods discarded (discard_periods={discard_periods}); give "
+                         f"periods >= {discard_periods + 1}")
+    return factor
+
+
 def acquire(model: StructuralModel, excitation: Excitation, *, fs: float = 2500.0,
             fs_int: float = 20000.0, periods: int = 8, outputs=None,
             quantity: str = "displacement", noise_percent: float = 0.5,
@@ -263,15 +302,7 @@ def acquire(model: StructuralModel, excitation: Excitation, *, fs: float = 2500.
     if excitation.fs != fs:
         raise ValueError(f"the excitation is sampled at {excitation.fs} Hz but fs={fs}; "
                          "generate it at the measurement rate")
-    factor = round(fs_int / fs)
-    if factor < 1 or abs(factor * fs - fs_int) > 1e-9 * fs_int:
-        raise ValueError(f"fs_int={fs_int} Hz must be an integer multiple of fs={fs} Hz")
-    if excitation.n_samples < 2 * FIR_HALF:
-        raise ValueError(f"the excitation period has {excitation.n_samples} samples; give at "
-                         f"least {2 * FIR_HALF}")
-    if int(periods) != periods or periods < 1 or not 0 <= discard_periods < periods:
-        raise ValueError(f"need periods >= 1 and 0 <= discard_periods < periods; got "
-                         f"periods={periods}, discard_periods={discard_periods}")
+    factor = check_timing(fs, fs_int, excitation.n_samples, periods, discard_periods)
     if not (np.isfinite(noise_percent) and noise_percent >= 0):
         raise ValueError(f"noise_percent must be >= 0; got {noise_percent}")
     if noise_reference is not None and noise_reference not in outputs:

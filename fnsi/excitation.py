@@ -17,8 +17,13 @@ from typing import Literal
 import numpy as np
 
 
-def excited_lines(samples: int, fs: float, band: tuple[float, float]) -> np.ndarray:
-    """DFT lines k (frequency k fs / samples [Hz]) inside ``band``, DC and Nyquist excluded.
+def excited_line_range(samples: int, fs: float, band: tuple[float, float]) -> tuple[int, int]:
+    """First and last DFT line k (frequency k fs / samples [Hz]) inside ``band``, DC and
+    Nyquist excluded, found in a few steps whatever ``samples``: a request is checked
+    with it without allocating its lines.
+
+    The frequency k fs / samples never decreases with k (rounding is monotone), so the
+    lines in the band, within 1e-9 fs, are every k from the first to the last.
 
     Parameters
     ----------
@@ -31,12 +36,13 @@ def excited_lines(samples: int, fs: float, band: tuple[float, float]) -> np.ndar
 
     Returns
     -------
-    ndarray of int, shape (lines,)
+    (int, int)
+        The first and the last line, first <= last.
 
     Examples
     --------
-    >>> excited_lines(100, 100.0, (5.0, 8.0)).tolist()
-    [5, 6, 7, 8]
+    >>> excited_line_range(100, 100.0, (5.0, 8.0))
+    (5, 8)
     """
     if int(samples) != samples or samples < 4:
         raise ValueError(f"samples per period must be an integer >= 4; got {samples}")
@@ -45,13 +51,45 @@ def excited_lines(samples: int, fs: float, band: tuple[float, float]) -> np.ndar
     low, high = (float(b) for b in band)
     if not (0 <= low <= high <= fs / 2):
         raise ValueError(f"band must satisfy 0 <= low <= high <= fs/2 = {fs / 2} Hz; got {band}")
-    k = np.arange(1, (samples + 1) // 2)  # below Nyquist: a Nyquist line has no phase
-    f = k * fs / samples
-    lines = k[(f >= low - 1e-9 * fs) & (f <= high + 1e-9 * fs)]
-    if lines.size == 0:
+    samples = int(samples)
+    top = (samples + 1) // 2 - 1  # below Nyquist: a Nyquist line has no phase
+    lowest, highest = low - 1e-9 * fs, high + 1e-9 * fs
+
+    def frequency(k: int) -> float:
+        return float(np.float64(k) * fs / samples)
+
+    # start from the rounded estimates, then step to the exact ends (a step or two)
+    first = min(max(1, int(lowest * samples / fs)), top + 1)
+    while first > 1 and frequency(first - 1) >= lowest:
+        first -= 1
+    while first <= top and frequency(first) < lowest:
+        first += 1
+    last = max(min(top, int(highest * samples / fs)), first - 1)
+    while last < top and frequency(last + 1) <= highest:
+        last += 1
+    while last >= first and frequency(last) > highest:
+        last -= 1
+    if last < first:
         raise ValueError(f"no DFT line of resolution {fs / samples:g} Hz falls in band {band}; "
                          "widen the band or lengthen the period")
-    return lines
+    return first, last
+
+
+def excited_lines(samples: int, fs: float, band: tuple[float, float]) -> np.ndarray:
+    """DFT lines k (frequency k fs / samples [Hz]) inside ``band``, DC and Nyquist excluded
+    (:func:`excited_line_range`; parameters as there).
+
+    Returns
+    -------
+    ndarray of int, shape (lines,)
+
+    Examples
+    --------
+    >>> excited_lines(100, 100.0, (5.0, 8.0)).tolist()
+    [5, 6, 7, 8]
+    """
+    first, last = excited_line_range(samples, fs, band)
+    return np.arange(first, last + 1)
 
 
 def _synthesise(spectrum: np.ndarray, samples: int, rms: float) -> np.ndarray:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import zipfile
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Literal, get_args
@@ -55,6 +56,35 @@ def _names(names, count: int, prefix: str, what: str) -> tuple[str, ...]:
     if len(set(result)) != len(result):
         raise ValueError(f"{what} must be unique; got {list(result)}")
     return result
+
+
+def check_channels(chosen, valid: tuple[str, ...], kind: str) -> None:
+    """ValueError unless every name of ``chosen`` is one of ``valid``, each once.
+
+    A channel chosen twice would enter the data matrices twice, as two outputs that no
+    model can tell apart, and make the channel names of the result ambiguous.
+
+    Parameters
+    ----------
+    chosen : sequence of str
+        Channel names chosen, in order.
+    valid : tuple of str
+        Names of the channels there are.
+    kind : str
+        What they are, for the message (``"input"``, ``"output"``).
+
+    Examples
+    --------
+    >>> check_channels(("y1", "y1"), ("y0", "y1"), "output")
+    Traceback (most recent call last):
+    ValueError: outputs ['y1'] are chosen more than once; name each output channel once
+    """
+    for name in chosen:
+        _index(valid, name, kind)
+    repeated = sorted(name for name, count in Counter(chosen).items() if count > 1)
+    if repeated:
+        raise ValueError(f"{kind}s {repeated} are chosen more than once; name each {kind} "
+                         "channel once")
 
 
 def _index(names: tuple[str, ...], name: str, kind: str) -> int:
@@ -119,10 +149,8 @@ class Layout:
 
     def select(self, inputs=None, outputs=None) -> Layout:
         """Layout of the named inputs and outputs (None keeps all), in order."""
-        for name in inputs or ():
-            self.input_index(name)
-        for name in outputs or ():
-            self.output_index(name)
+        check_channels(inputs or (), self.input_names, "input")
+        check_channels(outputs or (), self.output_names, "output")
         return Layout(self.fs, self.periods, self.period_length, self.n_realisations,
                       self.input_names if inputs is None else tuple(inputs),
                       self.output_names if outputs is None else tuple(outputs))
@@ -265,6 +293,7 @@ class Measurement:
 
     def select(self, inputs=None, outputs=None) -> Measurement:
         """Measurement restricted to the named inputs and outputs (None keeps all), in order."""
+        self.layout.select(inputs, outputs)  # names valid, none twice
         iu = [self.input_index(n) for n in inputs] if inputs is not None else None
         iy = [self.output_index(n) for n in outputs] if outputs is not None else None
         return Measurement(

@@ -63,6 +63,14 @@ KIND_PARAMETERS: dict[NonlinearityKind, tuple[str, ...]] = {
 
 CLEARANCE_SIDES = ("both", "positive", "negative")
 
+MAX_EXPONENT = 10.0
+"""Largest polynomial exponent p. Polynomial restoring forces of structures use p from
+about 0.5 (softening) through 1.5 (Hertz contact) and 3 (Duffing) to 7 (high-order
+hardening). A displacement spanning one decade of amplitude gives a basis |x|^p spanning
+p decades, so at p = 10 its least-squares coefficient (Eq. 13) is already set by a handful
+of peak samples, and beyond it the basis of a record reaching |x| = 10^(308 / p) overflows
+double precision (1e31 at p = 10, 1 at p = 1e9)."""
+
 
 # -- compiled force laws ----------------------------------------------------------------------
 # Each element's parameters sit in a float vector ``params`` from offset ``p`` on (built by
@@ -276,6 +284,30 @@ def spline_matrices(knots) -> tuple[np.ndarray, np.ndarray]:
     return ordinates, solved[2:]
 
 
+def _kind(value) -> NonlinearityKind:
+    """``value`` as a kind; ValueError listing the kinds."""
+    try:
+        return NonlinearityKind(value)
+    except ValueError:
+        raise ValueError(f"unknown nonlinearity kind {value!r}; use one of "
+                         f"{[k.value for k in NonlinearityKind]}") from None
+
+
+def _refuse_foreign(foreign, kind: NonlinearityKind) -> None:
+    """ValueError when parameters of other kinds were given to a ``kind`` element."""
+    if foreign:
+        raise ValueError(f"{sorted(foreign)} are not parameters of a {kind} element; it takes "
+                         f"{list(KIND_PARAMETERS[kind])}")
+
+
+def _numbers(values, name: str) -> tuple[float, ...]:
+    """``values`` as a tuple of floats; ValueError naming ``name`` when one is not a number."""
+    try:
+        return tuple(float(b) for b in values)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a list of numbers; got {values!r}") from None
+
+
 def _positive(value, name: str, kind: str) -> float | None:
     """``value`` as a float, None kept; ValueError unless positive and finite."""
     if value is None:
@@ -303,7 +335,8 @@ class NonlinearElement:
     ref : str or None
         DOF / output channel on which -f acts; None for ground.
     exponent, signed :
-        polynomial: g = |x|^exponent sign(x) if signed, else |x|^exponent (exponent > 0).
+        polynomial: g = |x|^exponent sign(x) if signed, else |x|^exponent
+        (0 < exponent <= :data:`MAX_EXPONENT`).
     gap, gap_negative, gap_positive, side :
         clearance: contact beyond x > g+ and x < -g- [length]. ``gap`` sets both;
         ``gap_negative`` / ``gap_positive`` set them separately. ``side`` "positive" or
@@ -346,11 +379,7 @@ class NonlinearElement:
     coefficients: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
-        try:
-            kind = NonlinearityKind(self.kind)
-        except ValueError:
-            raise ValueError(f"unknown nonlinearity kind {self.kind!r}; use one of "
-                             f"{[k.value for k in NonlinearityKind]}") from None
+        kind = _kind(self.kind)
         set_ = object.__setattr__
         set_(self, "kind", kind)
         if not isinstance(self.dof, str) or not self.dof:
@@ -358,15 +387,13 @@ class NonlinearElement:
         if self.ref is not None and (not isinstance(self.ref, str) or self.ref == self.dof):
             raise ValueError(f"ref must be another DOF name or None (ground); got {self.ref!r}")
         for name in ("breakpoints", "knots"):
-            set_(self, name, tuple(float(b) for b in getattr(self, name)))
+            set_(self, name, _numbers(getattr(self, name), f"{kind} {name}"))
         defaults = {f.name: f.default for f in dataclasses.fields(self)}
         foreign = [name for name in defaults
                    if name not in ("kind", "dof", "ref", "coefficients")
                    and name not in KIND_PARAMETERS[kind]
                    and getattr(self, name) != defaults[name]]
-        if foreign:
-            raise ValueError(f"{foreign} are not parameters of a {kind} element; it takes "
-                             f"{list(KIND_PARAMETERS[kind])}")
+        _refuse_foreign(foreign, kind)
         getattr(self, f"_validate_{kind.value}")()
         if self.coefficients is not None:
             coefficients = tuple(float(c) for c in np.atleast_1d(self.coefficients))
@@ -378,7 +405,12 @@ class NonlinearElement:
 
     # -- validation per kind ------------------------------------------------------------------
     def _validate_polynomial(self) -> None:
-        object.__setattr__(self, "exponent", _positive(self.exponent, "exponent", "polynomial"))
+        exponent = _positive(self.exponent, "exponent", "polynomial")
+        if exponent > MAX_EXPONENT:
+            raise ValueError(f"polynomial exponent must be at most {MAX_EXPONENT:g} (beyond it "
+                             "|x|^exponent spans too many decades to identify, and overflows); "
+                             f"got {self.exponent!r}")
+        object.__setattr__(self, "exponent", exponent)
         if not isinstance(self.signed, bool | np.bool_):
             raise ValueError(f"polynomial signed must be true or false; got {self.signed!r}")
         object.__setattr__(self, "signed", bool(self.signed))
@@ -638,15 +670,26 @@ class NonlinearElement:
         return out
 
     @classmethod
-    def from_json(cls, d: dict) -> NonlinearElement:
-        """Element from the JSON object of :meth:`to_json` (unknown keys are rejected)."""
-        if not isinstance(d, dict) or "kind" not in d or "dof" not in d:
-            raise ValueError("a nonlinear element needs at least {'kind': ..., 'dof': ...}")
-        allowed = {"kind", "dof", "ref", "coefficients"} | {f.name for f in dataclasses.fields(cls)}
+    def check_keys(cls, d: dict) -> None:
+        """ValueError naming the keys of the JSON object ``d`` (with a ``kind``) that are
+        no field of an element, or that are parameters of another kind: given, they are
+        refused even at their defaults, never silently ignored."""
+        allowed = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - allowed)
         if unknown:
             raise ValueError(f"unknown nonlinear element keys {unknown}; allowed: "
                              f"{sorted(allowed)}")
+        kind = _kind(d["kind"])
+        _refuse_foreign(set(d) - {"kind", "dof", "ref", "coefficients",
+                                  *KIND_PARAMETERS[kind]}, kind)
+
+    @classmethod
+    def from_json(cls, d: dict) -> NonlinearElement:
+        """Element from the JSON object of :meth:`to_json` (keys checked by
+        :meth:`check_keys`)."""
+        if not isinstance(d, dict) or "kind" not in d or "dof" not in d:
+            raise ValueError("a nonlinear element needs at least {'kind': ..., 'dof': ...}")
+        cls.check_keys(d)
         kwargs = dict(d)
         for name in ("breakpoints", "knots", "coefficients"):
             if kwargs.get(name) is not None:

@@ -82,9 +82,9 @@ from typing import Literal
 
 import numpy as np
 
-from fnsi.acquisition import Truth, acquire
-from fnsi.excitation import Excitation, multisine, periodic_noise
-from fnsi.measurement import Measurement
+from fnsi.acquisition import Truth, acquire, check_timing
+from fnsi.excitation import Excitation, excited_line_range, multisine, periodic_noise
+from fnsi.measurement import Measurement, check_channels
 from fnsi.nonlinear import NonlinearElement
 from fnsi.structure import StructuralModel
 
@@ -177,11 +177,15 @@ class Preset:
         RMS of the input force [N].
     band : tuple of float
         Excited band [Hz] of the periodic random noise.
+    discard_periods : int
+        Leading periods that hold the transient from rest, left out of the noise
+        reference and of the exceedance counts (the paper keeps the last 6 of 8).
     """
 
     directions: dict[str, float]
     rms_n: float
     band: tuple[float, float] = (5.0, 50.0)
+    discard_periods: int = 2
 
 
 PRESETS: dict[str, Preset] = {
@@ -532,6 +536,43 @@ def smallsat_model(params: SmallSatParameters | None = None) -> StructuralModel:
     return StructuralModel(M, C, K, DOF_NAMES, wems_elements())
 
 
+def check_preset(name: str, *, periods: int, samples_per_period: int,
+                 outputs: tuple[str, ...] | None, fs: float, fs_int: float) -> Preset:
+    """The preset called ``name``, after checking that :func:`simulate_preset` can run it
+    with these arguments; parameters as there.
+
+    Cheap (no simulation): a service refuses with it, at submission, a run that could
+    only fail (too few periods after the preset's transient, unknown or repeated outputs,
+    rates or a period that cannot carry the preset's band).
+
+    Returns
+    -------
+    Preset
+
+    Raises
+    ------
+    ValueError
+        Naming the preset and what to change.
+
+    Examples
+    --------
+    >>> check_preset("single", periods=2, samples_per_period=2500, outputs=None,
+    ...              fs=2500.0, fs_int=20000.0)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: preset 'single': periods=2 leaves no period after the 2 transient ...
+    """
+    if name not in PRESETS:
+        raise ValueError(f"unknown SmallSat preset {name!r}; use one of {list(PRESETS)}")
+    preset = PRESETS[name]
+    try:
+        check_timing(fs, fs_int, samples_per_period, periods, preset.discard_periods)
+        excited_line_range(samples_per_period, fs, preset.band)
+        check_channels(outputs or (), DOF_NAMES, "output")
+    except ValueError as err:
+        raise ValueError(f"preset {name!r}: {err}") from None
+    return preset
+
+
 def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
                     samples_per_period: int = 30000, rms: float | None = None,
                     seed: int = 0, noise_percent: float = 0.5,
@@ -557,7 +598,8 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
         impacts). ``"multi"``: 200 N RMS at the wheel ``W`` along the X-Y diagonal, the
         force split equally on ``W_X`` and ``W_Y`` (Table 8 regime, all eight stops).
     periods : int
-        Periods simulated and recorded (the paper keeps the last 6 of 8).
+        Periods simulated and recorded, more than the preset's ``discard_periods`` (the
+        paper keeps the last 6 of 8).
     samples_per_period : int
         Samples per period at ``fs`` (30,000 = 12 s: lines every 1/12 Hz).
     rms : float, optional
@@ -592,14 +634,13 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
 
     Examples
     --------
-    >>> m, truth = simulate_preset("single", periods=2, samples_per_period=2500,
+    >>> m, truth = simulate_preset("single", periods=3, samples_per_period=2500,
     ...                            outputs=("NC2w_Z", "NC2b_Z"))   # doctest: +SKIP
     >>> m.input_names, m.output_names, m.y.shape                   # doctest: +SKIP
-    (('F_NC2w_Z',), ('NC2w_Z', 'NC2b_Z'), (1, 5000, 2))
+    (('F_NC2w_Z',), ('NC2w_Z', 'NC2b_Z'), (1, 7500, 2))
     """
-    if name not in PRESETS:
-        raise ValueError(f"unknown SmallSat preset {name!r}; use one of {list(PRESETS)}")
-    preset = PRESETS[name]
+    preset = check_preset(name, periods=periods, samples_per_period=samples_per_period,
+                          outputs=outputs, fs=fs, fs_int=fs_int)
     rms_n = preset.rms_n if rms is None else float(rms)
     outputs = MEASURED_DOFS if outputs is None else tuple(outputs)
     excitation_seed, noise_seed = np.random.SeedSequence(seed).generate_state(2)
@@ -614,7 +655,8 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
     measurement, truth = acquire(
         smallsat_model(parameters), excitation, fs=fs, fs_int=fs_int, periods=periods,
         outputs=simulated, quantity=quantity, noise_percent=noise_percent,
-        noise_reference=BRACKET_TIP, seed=int(noise_seed), progress=progress)
+        noise_reference=BRACKET_TIP, discard_periods=preset.discard_periods,
+        seed=int(noise_seed), progress=progress)
     if simulated == outputs:
         return measurement, truth
     modal = replace(truth.modal, shapes=truth.modal.shapes[:, :-1], output_names=outputs)

@@ -15,6 +15,27 @@ from fnsi.modal import ModalTable
 from fnsi.nonlinear import NonlinearElement
 
 
+def _check_mass(M: np.ndarray) -> None:
+    """ValueError unless the mass matrix is symmetric positive definite.
+
+    Every DOF must carry inertia for M q'' = p - C q' - K q - f to give accelerations:
+    the Newmark integration starts by solving it for q''(0), and the state-space form of
+    Eq. 3-4 needs M^-1. A zero row, a negative mass or a singular M fail both. Symmetry is
+    tested to 1e-12 of the largest entry (a matrix typed or exported with rounding
+    passes); definiteness with numpy's rank tolerance, smallest eigenvalue above
+    r eps times the largest (:func:`numpy.linalg.matrix_rank`).
+    """
+    scale = float(np.max(np.abs(M)))
+    if np.max(np.abs(M - M.T)) > 1e-12 * scale:
+        raise ValueError("the mass matrix M must be symmetric; M[i][j] and M[j][i] differ")
+    eigenvalues = np.linalg.eigvalsh(M)
+    if scale == 0 or eigenvalues[0] <= M.shape[0] * np.finfo(float).eps * eigenvalues[-1]:
+        raise ValueError("the mass matrix M must be positive definite (every DOF with a "
+                         f"positive mass); its smallest eigenvalue is {eigenvalues[0]:.3g} "
+                         f"against a largest of {eigenvalues[-1]:.3g}, so M is singular or "
+                         "indefinite: give each DOF its mass, or remove massless DOFs")
+
+
 @dataclass(frozen=True)
 class StructuralModel:
     """Linear matrices, DOF names and lumped nonlinear elements of a structure.
@@ -22,7 +43,8 @@ class StructuralModel:
     Attributes
     ----------
     M, C, K : ndarray, shape (r, r)
-        Mass, viscous damping and stiffness matrices (C may be non-proportional).
+        Mass, viscous damping and stiffness matrices (C may be non-proportional; M
+        symmetric positive definite).
     dof_names : tuple of str
         Names of the r DOFs (also the output channel names of simulated measurements).
     elements : tuple of NonlinearElement
@@ -54,6 +76,7 @@ class StructuralModel:
                                  f"M {self.M.shape}, C {self.C.shape}, K {self.K.shape}")
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"{name} contains NaN or infinite entries")
+        _check_mass(self.M)
         names = tuple(str(n) for n in self.dof_names)
         if len(names) != r or len(set(names)) != r:
             raise ValueError(f"dof_names must be {r} unique names, one per DOF; got {len(names)}"

@@ -6,24 +6,21 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.schemas.base import RequestModel
 from service.schemas.identifications import IdentificationRequest
 from service.schemas.jobs import Job
 from service.schemas.simulations import SimulationRequest
 
 
-class SimulationItem(BaseModel):
+class SimulationItem(RequestModel):
     """A simulation job of a batch."""
-
-    model_config = ConfigDict(extra="forbid")
 
     kind: Literal["simulation"] = Field(description="Job kind.")
     request: SimulationRequest = Field(description="As the body of POST /v1/simulations.")
 
 
-class IdentificationItem(BaseModel):
+class IdentificationItem(RequestModel):
     """An identification job of a batch."""
-
-    model_config = ConfigDict(extra="forbid")
 
     kind: Literal["identification"] = Field(description="Job kind.")
     request: IdentificationRequest = Field(description="As the body of POST "
@@ -33,10 +30,10 @@ class IdentificationItem(BaseModel):
 BatchItem = Annotated[SimulationItem | IdentificationItem, Field(discriminator="kind")]
 
 
-class BatchRequest(BaseModel):
+class BatchRequest(RequestModel):
     """Jobs to submit together (at most 1000)."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"jobs": [
+    model_config = ConfigDict(json_schema_extra={"examples": [{"jobs": [
         {"kind": "simulation", "request": {"preset": "single", "periods": 3,
                                            "samples_per_period": 2500, "seed": 1}},
         {"kind": "simulation", "request": {"preset": "single", "periods": 3,

@@ -8,6 +8,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
 
 from service.pagination import NextCursor
+from service.schemas.base import RequestModel
 
 Quantity = Literal["displacement", "velocity", "acceleration"]
 
@@ -29,10 +30,10 @@ class DownloadFormat(StrEnum):
     CSV = "csv"
 
 
-class UploadMeta(BaseModel):
+class UploadMeta(RequestModel):
     """Optional JSON sent with an upload (form field ``meta``); overrides the file."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={
+    model_config = ConfigDict(json_schema_extra={
         "examples": [{"fs": 2500, "inputs": ["force"], "periods": 8,
                       "quantity": "displacement"}]})
 

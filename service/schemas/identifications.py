@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from pydantic import (
-    BaseModel,
     ConfigDict,
     Field,
     SerializerFunctionWrapHandler,
@@ -17,55 +16,36 @@ from pydantic import (
     model_validator,
 )
 
-from fnsi.nonlinear import NonlinearElement, NonlinearityKind
+from fnsi.nonlinear import MAX_EXPONENT, NonlinearElement, NonlinearityKind
+from service.schemas.base import RequestModel
 
 MAX_BASIS = 1000
 """Most basis functions per element (spline intervals, breakpoints): bounds the work a
 request can ask for before the library sees it."""
 
 
-class NonlinearElementSpec(BaseModel):
-    """A nonlinear element (DESIGN.md JSON shape): a restoring force f(x, v) between two
-    output channels (or one channel and ground), x = y[dof] - y[ref]. Only the parameters
-    of its kind may be given."""
-
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
-        {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5},
-        {"kind": "spline", "dof": "NC2w_Z", "ref": "NC2b_Z", "intervals": 13}]})
+class _Element(RequestModel):
+    """What every nonlinear element has: a restoring force f(x, v) between two output
+    channels (or one channel and ground), x = y[dof] - y[ref] (DESIGN.md JSON shape)."""
 
     kind: NonlinearityKind = Field(description="Functional form of the restoring force.")
     dof: str = Field(description="Output channel on which +f acts.", examples=["NC2w_Z"])
     ref: str | None = Field(None, description="Output channel on which -f acts; null for "
                             "ground.", examples=["NC2b_Z"])
-    exponent: StrictFloat | None = Field(None, gt=0, description="polynomial: g = |x|^exponent "
-                                   "(sign(x) if signed) [-].", examples=[3.0])
-    signed: StrictBool | None = Field(None, description="polynomial: multiply by sign(x).")
-    gap: StrictFloat | None = Field(None, gt=0, description="clearance: symmetric gap [length "
-                              "unit of the outputs].", examples=[1.5])
-    gap_negative: StrictFloat | None = Field(None, gt=0, description="clearance: gap for x < 0.")
-    gap_positive: StrictFloat | None = Field(None, gt=0, description="clearance: gap for x > 0.")
-    side: Literal["both", "positive", "negative"] | None = Field(
-        None, description="clearance: which stops exist (one-sided stop).")
-    breakpoints: list[StrictFloat] | None = Field(
-        None, max_length=MAX_BASIS,
-        description="piecewise_linear: increasing hinge positions [length].")
-    knots: list[StrictFloat] | None = Field(
-        None, max_length=MAX_BASIS + 1, description="spline: increasing knot abscissas "
-        "[length], 0 strictly inside an interval (paper Eq. 19-22).")
-    intervals: StrictInt | None = Field(None, ge=2, le=MAX_BASIS,
-                                  description="spline: number of intervals over the "
-                                  "measured range (automatic knots: one interval over the "
-                                  "inner half of the excursion around equilibrium, the "
-                                  "others evenly over the outer halves).",
-                                  examples=[13])
-    width: StrictFloat | None = Field(None, gt=0, description="coulomb_friction: velocity "
-                                "smoothing width [length/s], g = tanh(v / width).")
     coefficients: list[StrictFloat] | None = Field(
         None, max_length=MAX_BASIS + 1, description="mu_j per basis function: the truth "
         "of a simulated element; ignored by identification.")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _own_parameters(cls, data: Any) -> Any:
+        # Before pydantic's "extra inputs": the library's message lists what the kind takes.
+        if isinstance(data, dict) and "kind" in data:
+            NonlinearElement.check_keys(data)
+        return data
+
     @model_validator(mode="after")
-    def _valid_for_library(self) -> NonlinearElementSpec:
+    def _valid_for_library(self) -> _Element:
         # The library owns the rules of each kind; its message says what to change.
         NonlinearElement.from_json(self.model_dump(mode="json"))
         return self
@@ -76,16 +56,106 @@ class NonlinearElementSpec(BaseModel):
         return {k: v for k, v in handler(self).items() if v is not None or k == "ref"}
 
 
+class PolynomialElement(_Element):
+    """g = |x|^exponent, times sign(x) when signed (a cubic spring: exponent 3)."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"kind": "polynomial", "dof": "x1", "ref": None, "exponent": 3.0}]})
+
+    kind: Literal[NonlinearityKind.POLYNOMIAL] = Field(description="Polynomial stiffness.")
+    exponent: StrictFloat | None = Field(
+        None, gt=0, le=MAX_EXPONENT, description="Exponent p of g = |x|^p [-], 0 < p <= "
+        f"{MAX_EXPONENT:g}; default 3.", examples=[3.0])
+    signed: StrictBool | None = Field(None, description="Multiply by sign(x) (an odd "
+                                      "force); default true.")
+
+
+class ClearanceElement(_Element):
+    """Dead zone: g = x - g+ beyond g+, x + g- below -g-, 0 between (a stop)."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5}]})
+
+    kind: Literal[NonlinearityKind.CLEARANCE] = Field(description="Clearance (stop).")
+    gap: StrictFloat | None = Field(None, gt=0, description="Symmetric gap [length unit of "
+                                    "the outputs].", examples=[1.5])
+    gap_negative: StrictFloat | None = Field(None, gt=0, description="Gap for x < 0 [length].")
+    gap_positive: StrictFloat | None = Field(None, gt=0, description="Gap for x > 0 [length].")
+    side: Literal["both", "positive", "negative"] | None = Field(
+        None, description="Which stops exist (one-sided stop); default both.")
+
+
+class PiecewiseLinearElement(_Element):
+    """One hinge per breakpoint b: max(x - b, 0) for b >= 0, min(x - b, 0) for b < 0."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"kind": "piecewise_linear", "dof": "x1", "ref": None, "breakpoints": [-1.0, 1.0]}]})
+
+    kind: Literal[NonlinearityKind.PIECEWISE_LINEAR] = Field(description="Hinges.")
+    breakpoints: list[StrictFloat] = Field(
+        min_length=1, max_length=MAX_BASIS, description="Strictly increasing hinge "
+        "positions [length].", examples=[[-1.0, 1.0]])
+
+
+class SplineElement(_Element):
+    """Natural cubic spline with zero force and slope at equilibrium (paper Eq. 19-22):
+    give ``knots``, or ``intervals`` for automatic knots over the measured range."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"kind": "spline", "dof": "NC2w_Z", "ref": "NC2b_Z", "intervals": 13}]})
+
+    kind: Literal[NonlinearityKind.SPLINE] = Field(description="Cubic spline.")
+    knots: list[StrictFloat] | None = Field(
+        None, max_length=MAX_BASIS + 1, description="Strictly increasing knot abscissas "
+        "[length], 0 strictly inside an interval (paper Eq. 19-22).",
+        examples=[[-3.0, -1.5, 1.5, 3.0]])
+    intervals: StrictInt | None = Field(None, ge=2, le=MAX_BASIS,
+                                        description="Number of intervals over the measured "
+                                        "range (automatic knots: one interval over the inner "
+                                        "half of the excursion around equilibrium, the "
+                                        "others evenly over the outer halves).",
+                                        examples=[13])
+
+
+class CoulombFrictionElement(_Element):
+    """g = tanh(v / width): dry friction smoothed over a velocity width."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"kind": "coulomb_friction", "dof": "x1", "ref": None, "width": 0.01}]})
+
+    kind: Literal[NonlinearityKind.COULOMB_FRICTION] = Field(description="Dry friction.")
+    width: StrictFloat = Field(gt=0, description="Velocity smoothing width [length/s].",
+                               examples=[0.01])
+
+
+class QuadraticDampingElement(_Element):
+    """g = v |v|: no parameters."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"kind": "quadratic_damping", "dof": "x1", "ref": None}]})
+
+    kind: Literal[NonlinearityKind.QUADRATIC_DAMPING] = Field(description="Quadratic "
+                                                               "damping.")
+
+
+NonlinearElementSpec = Annotated[
+    PolynomialElement | ClearanceElement | PiecewiseLinearElement | SplineElement
+    | CoulombFrictionElement | QuadraticDampingElement,
+    Field(discriminator="kind")]
+"""A nonlinear element, one model per ``kind`` holding only that kind's parameters (any
+other field is refused)."""
+
+
 #: The word "auto" in an integer-or-"auto" field. Published as a one-value string enum
 #: rather than the ``const`` pydantic emits for a Literal: openapi-python-client parses an
 #: integer-or-const union as the const only, so generated clients could not send integers.
 Auto = Annotated[Literal["auto"], WithJsonSchema({"type": "string", "enum": ["auto"]})]
 
 
-class IdentificationRequest(BaseModel):
+class IdentificationRequest(RequestModel):
     """An FNSI identification of one dataset (paper Section II)."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{
+    model_config = ConfigDict(json_schema_extra={"examples": [{
         "dataset_id": "ds_5f1c0e2a9b7d4c3e8a10", "outputs": ["NC2w_Z", "NC2b_Z", "W_Z"],
         "band": [5.0, 50.0], "block_rows": 100, "order": "auto", "max_order": 40,
         "elements": [{"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5}]}]})

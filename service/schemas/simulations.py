@@ -6,7 +6,6 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
-    BaseModel,
     ConfigDict,
     Discriminator,
     Field,
@@ -16,9 +15,13 @@ from pydantic import (
     model_validator,
 )
 
+from fnsi.acquisition import check_timing
+from fnsi.excitation import excited_line_range
+from fnsi.measurement import check_channels
 from fnsi.nonlinear import NonlinearElement
-from fnsi.spectra import check_band
+from fnsi.smallsat import check_preset
 from fnsi.structure import StructuralModel
+from service.schemas.base import RequestModel
 from service.schemas.identifications import NonlinearElementSpec
 
 MAX_SAMPLES = 20_000_000
@@ -36,7 +39,7 @@ def _check_size(samples: int, fs: float, fs_int: float) -> None:
         raise ValueError(f"fs_int / fs = {fs_int / fs:g}; at most {MAX_INTEGRATION_FACTOR}")
 
 
-class PresetSimulation(BaseModel):
+class PresetSimulation(RequestModel):
     """Simulated test of the SmallSat reference structure (DESIGN.md section 4).
 
     ``single``: 100 N RMS at NC2w_Z (paper Table 3); ``multi``: 200 N RMS at the wheel W
@@ -44,12 +47,13 @@ class PresetSimulation(BaseModel):
     nonlinear coefficients, contact counts) is the job artefact ``truth.json``.
     """
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+    model_config = ConfigDict(json_schema_extra={"examples": [
         {"preset": "single", "periods": 3, "samples_per_period": 2500, "seed": 1}]})
 
     preset: Literal["single", "multi"] = Field(description="Excitation case of the paper.")
-    periods: StrictInt = Field(8, ge=1, le=1000, description="Periods simulated (the first ones "
-                         "hold the transient).", examples=[8])
+    periods: StrictInt = Field(8, ge=1, le=1000, description="Periods simulated; the first two "
+                         "hold the transient and are left out of the noise reference and "
+                         "the contact counts, so give at least 3.", examples=[8])
     samples_per_period: StrictInt = Field(30000, ge=16, le=10_000_000, description="Samples per "
                                     "period at the 2.5 kHz output rate.", examples=[30000])
     rms: StrictFloat | None = Field(None, gt=0, description="Excitation RMS [N]; default the "
@@ -58,8 +62,9 @@ class PresetSimulation(BaseModel):
     noise_percent: StrictFloat = Field(0.5, ge=0, le=100, description="Measurement noise RMS in "
                                  "% of the RMS response at the bracket tip.", examples=[0.5])
     outputs: list[str] | None = Field(
-        None, min_length=1, description="Measured DOFs, e.g. NC2w_Z; default all 39 "
-        "(13 nodes x X, Y, Z).", examples=[["NC2w_Z", "NC2b_Z", "W_Z"]])
+        None, min_length=1, description="Measured DOFs of the SmallSat model, each once, "
+        "e.g. NC2w_Z; default the 39 of the paper (13 nodes x X, Y, Z).",
+        examples=[["NC2w_Z", "NC2b_Z", "W_Z"]])
     quantity: Literal["displacement", "velocity", "acceleration"] = Field(
         "displacement", description="What the outputs measure.")
     fs: StrictFloat = Field(2500.0, gt=0, description="Measurement sampling rate [Hz].")
@@ -72,11 +77,18 @@ class PresetSimulation(BaseModel):
         _check_size(self.periods * self.samples_per_period, self.fs, self.fs_int)
         return self
 
+    @model_validator(mode="after")
+    def _runnable(self) -> PresetSimulation:
+        # The library owns the rules of a preset run (its transient periods, its channels,
+        # the rates); its message says what to change.
+        check_preset(self.preset, periods=self.periods,
+                     samples_per_period=self.samples_per_period, outputs=self.outputs,
+                     fs=self.fs, fs_int=self.fs_int)
+        return self
 
-class StructuralModelSpec(BaseModel):
+
+class StructuralModelSpec(RequestModel):
     """Linear matrices and nonlinear elements of a structure (Eq. 1-2)."""
-
-    model_config = ConfigDict(extra="forbid")
 
     M: list[list[StrictFloat]] = Field(description="Mass matrix (r x r) [kg].",
                                  examples=[[[1.0, 0.0], [0.0, 1.0]]])
@@ -113,10 +125,8 @@ class StructuralModelSpec(BaseModel):
             tuple(NonlinearElement.from_json(e.model_dump(mode="json")) for e in self.elements))
 
 
-class InputSpec(BaseModel):
+class InputSpec(RequestModel):
     """One excitation force along a direction of the DOFs."""
-
-    model_config = ConfigDict(extra="forbid")
 
     name: str | None = Field(None, description="Input channel name; default F_<dofs>.",
                              examples=["F_x1"])
@@ -126,10 +136,8 @@ class InputSpec(BaseModel):
     rms: StrictFloat = Field(gt=0, description="RMS of the force [N].", examples=[10.0])
 
 
-class ExcitationSpec(BaseModel):
+class ExcitationSpec(RequestModel):
     """Periodic excitation: a random-phase multisine or periodic noise per input."""
-
-    model_config = ConfigDict(extra="forbid")
 
     signal: Literal["multisine", "periodic_noise"] = Field(
         "multisine", description="Flat-spectrum random-phase multisine, or periodic "
@@ -147,11 +155,9 @@ class ExcitationSpec(BaseModel):
     inputs: list[InputSpec] = Field(min_length=1, max_length=100, description="The forces.")
 
 
-class ModelSimulation(BaseModel):
+class ModelSimulation(RequestModel):
     """Simulated periodic test of any structure: Newmark integration at ``fs_int``,
     decimation to ``fs``, band-limited measurement noise."""
-
-    model_config = ConfigDict(extra="forbid")
 
     model: StructuralModelSpec = Field(description="The structure.")
     excitation: ExcitationSpec = Field(description="The inputs.")
@@ -194,12 +200,12 @@ class ModelSimulation(BaseModel):
         if self.noise_reference is not None and self.noise_reference not in outputs:
             raise ValueError(f"noise_reference: {self.noise_reference!r} is not measured; "
                              f"outputs are {outputs}")
-        factor = round(self.fs_int / self.fs)
-        if factor < 1 or abs(factor * self.fs - self.fs_int) > 1e-9 * self.fs_int:
-            raise ValueError(f"fs_int={self.fs_int} Hz must be an integer multiple of "
-                             f"fs={self.fs} Hz")
+        check_channels(outputs, tuple(dofs), "output")
+        e = self.excitation
+        check_timing(self.fs, self.fs_int, e.samples_per_period, self.periods,
+                     self.discard_periods)
         try:
-            check_band(self.excitation.band, self.fs)
+            excited_line_range(e.samples_per_period, self.fs, e.band)
         except ValueError as err:
             raise ValueError(f"excitation.band: {err}") from None
         return self

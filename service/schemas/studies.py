@@ -8,6 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
 from fnsi.diagnosis import Effect
 from service.pagination import NextCursor
+from service.schemas.base import RequestModel
 from service.schemas.identifications import Auto, IdentificationRequest, NonlinearElementSpec
 from service.store import JobState
 
@@ -21,7 +22,7 @@ class StudyRequest(IdentificationRequest):
     (channels, band, block rows, lines, weighting) and changes only its order and
     elements."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{
+    model_config = ConfigDict(json_schema_extra={"examples": [{
         "dataset_id": "ds_5f1c0e2a9b7d4c3e8a10", "validation_dataset_id": "ds_93ab1c0e2a9b7d4c3e8a",
         "outputs": ["NC2w_Z", "NC2b_Z", "W_Z"], "band": [5.0, 50.0], "block_rows": 100,
         "order": "auto", "max_order": 40, "elements": [],
@@ -54,12 +55,12 @@ class StudyRequest(IdentificationRequest):
         return self
 
 
-class RevisionRequest(BaseModel):
+class RevisionRequest(RequestModel):
     """A new revision derived from an earlier one: elements added or removed, order
     changed. It is identified on the estimation data and judged on the validation data;
     revisions of a study are computed one at a time, in the order requested."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+    model_config = ConfigDict(json_schema_extra={"examples": [
         {"add": [_CLEARANCE], "note": "clearance at NC2 (diagnosis)"},
         {"remove": [0], "order": 24}]})
 
@@ -88,12 +89,12 @@ class RevisionRequest(BaseModel):
         return self
 
 
-class DiagnosisRequest(BaseModel):
+class DiagnosisRequest(RequestModel):
     """Rank the candidate missing effects of a revision (fnsi.diagnosis): screen every
     location, compare kinds at the best, validate the best few by identification and
     simulation. The effort fields trade time for thoroughness."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+    model_config = ConfigDict(json_schema_extra={"examples": [
         {}, {"revision": 0, "validated_candidates": 3}]})
 
     revision: StrictInt | None = Field(

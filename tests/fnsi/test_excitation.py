@@ -1,9 +1,17 @@
 """Excitation signals: reproducibility, RMS, band limits, periodicity, directions."""
 
+import tracemalloc
+
 import numpy as np
 import pytest
 
-from fnsi.excitation import Excitation, excited_lines, multisine, periodic_noise
+from fnsi.excitation import (
+    Excitation,
+    excited_line_range,
+    excited_lines,
+    multisine,
+    periodic_noise,
+)
 
 FS, N, BAND = 2500.0, 5000, (5.0, 50.0)
 
@@ -82,3 +90,27 @@ def test_excitation_directions_and_loads():
 def test_bad_input_is_rejected(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_excited_line_range_is_the_lines_in_band_without_listing_them():
+    """The few-step search returns exactly the lines whose frequency k fs / N lies in the
+    band within 1e-9 fs, on bands that end on a line or a rounding error away from one;
+    and checking a 10-million-sample period allocates nothing of its size."""
+    rng = np.random.default_rng(7)
+    for _ in range(3000):
+        samples, fs = int(rng.integers(4, 3000)), float(rng.uniform(1.0, 5e4))
+        k = np.arange(1, (samples + 1) // 2)
+        f = k * fs / samples
+        on_line = rng.integers(0, samples // 2 + 1) * fs / samples
+        low = min(fs / 2, max(0.0, on_line * (1 + rng.choice([0.0, 1e-12, -1e-12, 1e-8]))))
+        high = min(fs / 2, low + rng.integers(0, 4) * fs / samples)
+        inside = k[(f >= low - 1e-9 * fs) & (f <= high + 1e-9 * fs)]
+        if inside.size == 0:
+            with pytest.raises(ValueError, match="no DFT line"):
+                excited_line_range(samples, fs, (low, high))
+        else:
+            assert excited_line_range(samples, fs, (low, high)) == (inside[0], inside[-1])
+    tracemalloc.start()
+    assert excited_line_range(10_000_000, 2500.0, (0.0, 1250.0)) == (1, 4_999_999)
+    assert tracemalloc.get_traced_memory()[1] < 100_000  # bytes; the lines would be 40 MB
+    tracemalloc.stop()

@@ -99,3 +99,12 @@ def test_bad_input_is_refused_with_the_reason(kwargs, message):
 def test_unknown_channel_lists_the_valid_ones(record):
     with pytest.raises(ValueError, match=r"outputs are \['F', 'x2'\]"):
         record.output_index("x9")
+
+
+@pytest.mark.parametrize("select", [
+    lambda m: m.select(outputs=("x2", "x2")),
+    lambda m: m.layout.select(outputs=("x2", "F", "x2")),
+], ids=["measurement", "layout"])
+def test_a_channel_chosen_twice_is_refused(record, select):
+    with pytest.raises(ValueError, match=r"outputs \['x2'\] are chosen more than once"):
+        select(record)

@@ -1,6 +1,8 @@
 """Nonlinear elements: basis values against closed forms, Eq. 19-22 splines, JSON, errors."""
 
 import json
+import math
+import re
 
 import numpy as np
 import pytest
@@ -234,6 +236,12 @@ def test_json_shape_of_design_document():
         ({"kind": "coulomb_friction", "dof": "a", "width": 0.0}, "positive"),
         ({"kind": "polynomial", "dof": "a", "exponent": 0.0}, "positive"),
         ({"kind": "polynomial", "dof": "a", "exponent": "three"}, "positive"),
+        ({"kind": "polynomial", "dof": "a", "exponent": 1e9}, "at most 10"),
+        ({"kind": "polynomial", "dof": "a", "exponent": math.inf}, "positive finite"),
+        ({"kind": "polynomial", "dof": "a", "exponent": math.nan}, "positive finite"),
+        ({"kind": "spline", "dof": "a", "knots": (-1.0, None, 1.0)}, "spline knots must be"),
+        ({"kind": "spline", "dof": "a", "knots": (-1.0, math.nan, 1.0)}, "finite"),
+        ({"kind": "piecewise_linear", "dof": "a", "breakpoints": (math.inf,)}, "finite"),
         ({"kind": "polynomial", "dof": "a", "signed": "no"}, "true or false"),
         ({"kind": "polynomial", "dof": "a", "ref": "a"}, "another DOF"),
         ({"kind": "polynomial", "dof": ""}, "non-empty"),
@@ -251,5 +259,20 @@ def test_bad_use_raises_clear_errors():
         NonlinearElement("clearance", "a", gap=1.0).force(X)
     with pytest.raises(ValueError, match="unknown nonlinear element keys"):
         NonlinearElement.from_json({"kind": "clearance", "dof": "a", "gap": 1.0, "gapp": 2})
+
+
+@pytest.mark.parametrize("foreign", [{"exponent": 3.0}, {"signed": True}, {"width": None}])
+def test_json_refuses_another_kinds_parameter_even_at_its_default(foreign):
+    """A clearance given an exponent (3.0 is the dataclass default) would be silently
+    ignored if only values were compared; the JSON names the keys given."""
+    said = re.escape(f"{list(foreign)} are not parameters of a clearance")
+    with pytest.raises(ValueError, match=said):
+        NonlinearElement.from_json({"kind": "clearance", "dof": "a", "gap": 1.0, **foreign})
+
+
+def test_json_accepts_the_largest_exponent_and_its_own_parameters():
+    element = NonlinearElement.from_json({"kind": "polynomial", "dof": "a", "exponent": 10.0,
+                                          "signed": False, "coefficients": [1.0]})
+    assert element.force(np.array([-2.0])).tolist() == [1024.0]
     with pytest.raises(ValueError, match="1-D"):
         ELEMENTS[0].basis(np.zeros((3, 2)))

@@ -143,6 +143,24 @@ def test_unknown_preset_is_refused():
         smallsat.simulate_preset("double")
 
 
+@pytest.mark.parametrize(("changes", "says"), [
+    ({"periods": 1}, "periods=1 leaves no period after the 2 transient"),
+    ({"periods": 2}, "give periods >= 3"),
+    ({"outputs": ("nope",)}, "unknown output channel 'nope'; outputs are .*'NC2w_Z'"),
+    ({"outputs": ("W_Z", "W_Z")}, r"outputs \['W_Z'\] are chosen more than once"),
+    ({"fs_int": 20001.0}, "fs_int=20001 Hz must be an integer multiple of fs=2500 Hz"),
+    ({"fs": 80.0, "fs_int": 800.0}, "fs/2 = 40"),   # the 5-50 Hz band beyond Nyquist
+    ({"samples_per_period": 20}, "at least 32"),
+])
+def test_a_preset_run_that_could_only_fail_is_refused_before_simulating(changes, says):
+    arguments = {"periods": 3, "samples_per_period": 2500, "outputs": None, "fs": 2500.0,
+                 "fs_int": 20000.0, **changes}
+    with pytest.raises(ValueError, match="preset 'single': .*" + says):
+        smallsat.check_preset("single", **arguments)
+    with pytest.raises(ValueError, match=says):
+        smallsat.simulate_preset("single", **arguments)
+
+
 def test_parameters_with_missing_keys_are_refused():
     data = json.loads(smallsat.PARAMETERS_FILE.read_text())
     data.pop("arm_radius")
