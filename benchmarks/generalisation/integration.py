@@ -68,7 +68,8 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
     ------
     ValueError
         When the response is not periodic within ``max_periods`` (a subharmonic or
-        chaotic response, or too little damping).
+        chaotic response, or too little damping), or the integration fails (a response
+        escaping to infinity).
     """
     M, C, K = structure.M, structure.C, structure.K
     n = structure.n_dofs
@@ -101,6 +102,8 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
             solution = scipy.integrate.solve_ivp(rhs, (0.0, period), state, method=method,
                                                  t_eval=t, rtol=rtol, atol=atol[r],
                                                  dense_output=True)
+            if not solution.success:  # e.g. a softening spring escaping to infinity
+                raise ValueError(f"integration failed: {solution.message}")
             end = solution.sol(period)
             if np.all(np.abs(end - state) <= tolerance * np.abs(solution.y).max(axis=1)):
                 break
