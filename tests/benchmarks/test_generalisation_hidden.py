@@ -98,12 +98,21 @@ def test_claims_read_kind_location_and_stop_side_in_the_truths_orientation():
     # x2 - x0; a stop to ground keeps its side; a two-sided clearance has no side
     truth = {"dof": 0, "ref": 2, "kind_class": "stop", "gaps": [math.inf, 0.1]}
     reversed_stop = {"effect": "clearance", "location": {"dof": "x2", "ref": "x0"},
-                     "element": {"kind": "clearance", "side": "negative"}}
+                     "element": {"kind": "clearance", "gap_negative": 0.1, "side": "negative"}}
     assert claim(reversed_stop) == truth_claim(truth)
-    assert claim({**reversed_stop, "element": {"kind": "clearance", "side": "positive"}}
-                 ) != truth_claim(truth)
+    other_side = {"kind": "clearance", "gap_positive": 0.1, "side": "positive"}
+    assert claim({**reversed_stop, "element": other_side}) != truth_claim(truth)
     ground = {"effect": "clearance", "location": {"dof": "x3", "ref": None},
-              "element": {"kind": "clearance", "side": "both"}}
+              "element": {"kind": "clearance", "gap": 0.2, "side": "both"}}
     assert claim(ground) == ("clearance", frozenset((3, GROUND)), None)
     assert claim({"effect": "missing_mode", "location": None, "element": None}) == (
         "missing_mode", frozenset(), None)
+
+
+def test_a_clearance_gap_beyond_the_measured_motion_makes_a_stop():
+    # +-1.5 at x3 moving over [-1, 2]: only the positive side is ever in contact
+    ground = {"effect": "clearance", "location": {"dof": "x3", "ref": None},
+              "element": {"kind": "clearance", "gap": 1.5, "side": "both"}}
+    motion = {"x3": np.array([-1.0, 0.0, 2.0])}
+    assert claim(ground, motion) == ("stop", frozenset((3, GROUND)), "positive")
+    assert claim(ground, {"x3": np.array([-2.0, 2.0])})[0] == "clearance"
