@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from benchmarks.generalisation import synthesis
-from benchmarks.generalisation.blind import cases_dir, truth_path, write_json
+from benchmarks.generalisation.blind import fresh_cases_dir, truth_path, write_json
 from benchmarks.generalisation.structures import (
     TOPOLOGIES,
     Structure,
@@ -244,10 +244,7 @@ def generate(root, seed: int, count: int, *, noise_free: bool = False) -> list[s
     list of str
         Case ids.
     """
-    directory = cases_dir(root)
-    if (directory / "index.json").exists():
-        raise ValueError(f"{directory} already holds cases; use a fresh directory")
-    directory.mkdir(parents=True, exist_ok=True)
+    directory = fresh_cases_dir(root)
     ids, truths = [], {}
     for k, child in enumerate(np.random.SeedSequence(seed).spawn(count)):
         case = f"case{k:04d}"

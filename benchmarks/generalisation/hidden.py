@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.generalisation import synthesis
-from benchmarks.generalisation.blind import cases_dir, truth_path, write_json
+from benchmarks.generalisation.blind import fresh_cases_dir, truth_path, write_json
 from benchmarks.generalisation.cases import (
     PERIODS,
     Setup,
@@ -351,10 +351,7 @@ def generate_hidden(root, seed: int, count: int, *, noise_free: bool = False,
     list of str
         Case ids.
     """
-    directory = cases_dir(root)
-    if (directory / "index.json").exists():
-        raise ValueError(f"{directory} already holds cases; use a fresh directory")
-    directory.mkdir(parents=True, exist_ok=True)
+    directory = fresh_cases_dir(root)
     ids = [f"case{k:04d}" for k in range(count)]
     tasks = [(directory, case, child, noise_free)
              for case, child in zip(ids, np.random.SeedSequence(seed).spawn(count),
