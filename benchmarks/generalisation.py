@@ -1,6 +1,7 @@
-"""Generalisation benchmark, linear part (issue 20): random structures identified blind.
+"""Generalisation benchmark: random structures identified blind (linear part, issue 20)
+and hidden effects diagnosed blind (``--part hidden``, issue 21).
 
-Three phases (:mod:`benchmarks.generalisation`):
+Linear part: three phases (:mod:`benchmarks.generalisation`):
 
 1. generate: draw ``--count`` structures and tests from ``--seed``
    (:mod:`benchmarks.generalisation.cases`: chains, trees, grids of 2-12 DOFs, damping
@@ -26,6 +27,20 @@ files: ``--phase generate --workdir D`` once, then per version a copy of D with
 draws the same cases without measurement noise: some order of the diagram must then be
 correct on every case (100 % on seed 20), which checks the generator's truth against its
 data.
+
+Hidden-effect part (``--part hidden``, default 150 cases, seed 21): the same structures
+and tests with shorter records and 0, 1 or 2 hidden nonlinear elements (cubic hardening
+and softening, quadratic stiffness, symmetric and asymmetric clearances, one-sided stops,
+Coulomb friction, quadratic damping; to ground or between measured DOFs, near or far from
+the input), each sized so that the true linear structure misses the validation response
+by 3-60 % (:mod:`benchmarks.generalisation.hidden`, scipy's integrator to periodic
+steady state); the library's study loop with its defaults (create, diagnose, add the top
+candidate, diagnose, add) on each, blind; scored by
+:mod:`benchmarks.generalisation.hidden_scoring` into
+benchmarks/results/generalisation_hidden.md. ``--smoke``: the first 10 cases. ``--jobs``
+processes generate and run cases in parallel (default 2). Last output line: one JSON
+object {"cases", "top1_kind_location_pct", "floor_reached_pct", "false_alarm_pct",
+"two_effect_found_pct", "nothing_found_above_floor", "median_diagnosis_s"}.
 """
 
 from __future__ import annotations
@@ -35,16 +50,20 @@ import json
 import os
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # this checkout's fnsi and benchmarks, not an installed copy
 
+from benchmarks.generalisation import hidden_scoring  # noqa: E402
 from benchmarks.generalisation.cases import generate  # noqa: E402
+from benchmarks.generalisation.hidden import generate_hidden  # noqa: E402
 from benchmarks.generalisation.runner import run  # noqa: E402
 from benchmarks.generalisation.scoring import report, score_all, summary  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results" / "generalisation.md"
+HIDDEN_RESULTS = ROOT / "benchmarks" / "results" / "generalisation_hidden.md"
 HEADER = """# Generalisation benchmark, linear part
 
 Produced by `benchmarks/generalisation.py` (issue 20): random linear structures synthesised
@@ -54,14 +73,34 @@ rows `"auto"`), scored blind. A required mode is in the band and carries at leas
 the response power there; it is found when a reported mode is within 0.5 % in frequency and
 10 % in damping ratio. Order correct: every required mode found and no spurious mode in the
 band. Timings measured on a shared, loaded 2-core machine."""
+HIDDEN_HEADER = """# Generalisation benchmark, hidden-effect part
+
+Produced by `benchmarks/generalisation.py --part hidden` (issue 21): the linear part's
+random structures and tests (shorter records: 40-120 lines in the band, at most 4096
+samples per period, 3 periods) with 0, 1 or 2 hidden nonlinear elements at measured DOFs,
+each sized so that the true underlying linear structure misses the noise-free validation
+response by 3-60 % NRMSE; simulated to periodic steady state by scipy's DOP853 (not the
+library's simulator); validation record: another random-phase realisation. The library
+runs the study loop as a user would with its defaults (`Study.create` with only the band,
+order `"auto"`; `diagnose`; the top candidate added when the diagnosis finds one; a
+second round), every answer recorded before the truth is read. Kind classes: cubic
+(hardening or softening), quadratic stiffness, two-sided clearance (symmetric or
+asymmetric), one-sided stop (side must match), Coulomb friction, quadratic damping; a
+location is the pair of DOFs or a DOF and the ground. Timings measured on a shared,
+heavily loaded 2-core machine (two cases at a time)."""
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=20)
-    parser.add_argument("--count", type=int, default=200)
+    parser.add_argument("--part", choices=("linear", "hidden"), default="linear",
+                        help="linear structures (issue 20) or hidden effects (issue 21)")
+    parser.add_argument("--seed", type=int, default=None, help="default 20, hidden 21")
+    parser.add_argument("--count", type=int, default=None, help="default 200, hidden 150")
+    parser.add_argument("--jobs", type=int, default=2,
+                        help="processes generating and answering cases (hidden part)")
     parser.add_argument("--smoke", action="store_true",
-                        help="first 30 cases only; the table goes to the work directory")
+                        help="first 30 cases only (hidden: 10); the table goes to the work "
+                             "directory")
     parser.add_argument("--noise-free", action="store_true",
                         help="the same cases without measurement noise (checks the "
                              "generator: some order must then be correct on every case)")
@@ -72,12 +111,16 @@ def main(argv: list[str] | None = None) -> None:
                         help=f"Markdown table (default {RESULTS.relative_to(ROOT)} for a full "
                              "run of all phases, else generalisation.md in the work directory)")
     args = parser.parse_args(argv)
-    count = 30 if args.smoke else args.count
+    if args.part == "hidden":
+        hidden(args)
+        return
+    seed = 20 if args.seed is None else args.seed
+    count = 30 if args.smoke else (args.count or 200)
     root = args.workdir or Path(tempfile.mkdtemp(prefix="generalisation-"))
     print(f"benchmark directory {root}", flush=True)
     if args.phase in ("all", "generate"):
-        generate(root, args.seed, count, noise_free=args.noise_free)
-        print(f"generated {count} cases (seed {args.seed}"
+        generate(root, seed, count, noise_free=args.noise_free)
+        print(f"generated {count} cases (seed {seed}"
               f"{', noise free' if args.noise_free else ''})", flush=True)
     if args.phase in ("all", "run"):
         run(root, lambda case, a: print(
@@ -89,11 +132,44 @@ def main(argv: list[str] | None = None) -> None:
         target = args.results or (root / "generalisation.md" if scratch else RESULTS)
         blas = ", ".join(f"{name}={os.environ.get(name, '(unset)')}"
                          for name in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS"))
-        target.write_text(report(scores, args.seed, f"{HEADER}\n\nRun with {blas}. The "
+        target.write_text(report(scores, seed, f"{HEADER}\n\nRun with {blas}. The "
                                  "automatic order can depend on rounding: compare runs made "
                                  "with one BLAS setting, on the same case files."))
         print(f"table written to {target}")
         print(json.dumps(summary(scores)))
+
+
+def hidden(args: argparse.Namespace) -> None:
+    """The hidden-effect part's phases (module docstring)."""
+    seed = 21 if args.seed is None else args.seed
+    count = 10 if args.smoke else (args.count or 150)
+    root = args.workdir or Path(tempfile.mkdtemp(prefix="generalisation-hidden-"))
+    print(f"benchmark directory {root}", flush=True)
+    if args.phase in ("all", "generate"):
+        start = time.perf_counter()
+        generate_hidden(root, seed, count, noise_free=args.noise_free, jobs=args.jobs,
+                        progress=lambda case, truth: print(
+                            f"{case}: {', '.join(truth['plan']['kinds']) or 'no effect'}, "
+                            f"linear error {truth['plan']['linear_error_pct']:.3g} %",
+                            flush=True))
+        print(f"generated {count} cases (seed {seed}) in {time.perf_counter() - start:.0f} s",
+              flush=True)
+    if args.phase in ("all", "run"):
+        start = time.perf_counter()
+        run(root, lambda case, a: print(
+            f"{case}: {a['status']}, " + "; ".join(
+                f"{'found' if r['found'] else 'nothing'} "
+                f"{r['candidates'][0]['effect'] if r['found'] else ''} "
+                f"{r['diagnosis_s']:.0f} s" for r in a["rounds"]), flush=True), jobs=args.jobs)
+        print(f"answered in {time.perf_counter() - start:.0f} s", flush=True)
+    if args.phase in ("all", "score"):
+        scores = hidden_scoring.score_hidden(root, lambda message: print(message, flush=True))
+        scratch = args.smoke or args.noise_free or args.phase != "all"
+        target = args.results or (root / "generalisation_hidden.md" if scratch
+                                  else HIDDEN_RESULTS)
+        target.write_text(hidden_scoring.report(scores, seed, HIDDEN_HEADER))
+        print(f"table written to {target}")
+        print(json.dumps(hidden_scoring.summary(scores)))
 
 
 if __name__ == "__main__":

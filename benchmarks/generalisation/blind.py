@@ -42,6 +42,16 @@ def answer_path(root: Path, case: str) -> Path:
     return Path(root) / "answers" / f"{case}.json"
 
 
+def fresh_cases_dir(root: Path) -> Path:
+    """The case directory of ``root``, created; ValueError when it already holds cases
+    (phase 1 never overwrites a benchmark)."""
+    directory = cases_dir(root)
+    if (directory / "index.json").exists():
+        raise ValueError(f"{directory} already holds cases; use a fresh directory")
+    directory.mkdir(parents=True, exist_ok=True)
+    return directory
+
+
 def read_index(root: Path) -> dict:
     """Phase 1's index {"seed", "count", "cases"}; ValueError when phase 1 has not run."""
     path = cases_dir(root) / "index.json"

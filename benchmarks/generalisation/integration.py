@@ -38,7 +38,7 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
                           lines: np.ndarray, fs: float, sensors: np.ndarray,
                           inputs: np.ndarray, quantity: str, *, tolerance: float = 1e-8,
                           max_periods: int = 100, method: str = "DOP853",
-                          ) -> tuple[np.ndarray, np.ndarray, int]:
+                          rtol: float = 1e-10) -> tuple[np.ndarray, np.ndarray, int]:
     """One period of the forces and of the sensors' periodic response.
 
     Parameters
@@ -52,7 +52,10 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
     max_periods : int
         Periods integrated before giving up.
     method : str
-        ``solve_ivp`` method (rtol 1e-10).
+        ``solve_ivp`` method.
+    rtol : float
+        Its relative tolerance (the absolute one, per state component, is 1e-4 of it times
+        that component's largest value in the linear steady state).
 
     Returns
     -------
@@ -65,13 +68,19 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
     ------
     ValueError
         When the response is not periodic within ``max_periods`` (a subharmonic or
-        chaotic response, or too little damping).
+        chaotic response, or too little damping), or the integration fails (a response
+        escaping to infinity).
     """
     M, C, K = structure.M, structure.C, structure.K
     n = structure.n_dofs
     u = np.fft.irfft(spectrum, n=samples, axis=1)
-    q0 = np.fft.irfft(_linear_spectra(structure, spectrum, samples, lines, fs, inputs),
-                      n=samples, axis=1)[:, 0]  # (realisations, 2n) at t = 0
+    linear = np.fft.irfft(_linear_spectra(structure, spectrum, samples, lines, fs, inputs),
+                          n=samples, axis=1)  # (realisations, samples, 2n)
+    q0 = linear[:, 0]
+    # absolute tolerance per state component, from its linear range (displacements and
+    # velocities differ by orders of magnitude)
+    atol = 1e-4 * rtol * np.abs(linear).max(axis=1)
+    inverse_mass = np.linalg.inv(M)
     period = samples / fs
     t = np.arange(samples) / fs
     omega = 2 * np.pi * lines * fs / samples
@@ -84,15 +93,17 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
             f = np.zeros(n)
             f[inputs] = np.real(np.exp(1j * omega * time) @ coefficients)
             q, dq = state[:n], state[n:]
-            ddq = np.linalg.solve(M, f - C @ dq - K @ q - restoring(structure, q, dq))
+            ddq = inverse_mass @ (f - C @ dq - K @ q - restoring(structure, q, dq))
             return np.concatenate([dq, ddq])
 
         state, periods = q0[r], 0
         while True:
             periods += 1
             solution = scipy.integrate.solve_ivp(rhs, (0.0, period), state, method=method,
-                                                 t_eval=t, rtol=1e-10, atol=1e-14,
+                                                 t_eval=t, rtol=rtol, atol=atol[r],
                                                  dense_output=True)
+            if not solution.success:  # e.g. a softening spring escaping to infinity
+                raise ValueError(f"integration failed: {solution.message}")
             end = solution.sol(period)
             if np.all(np.abs(end - state) <= tolerance * np.abs(solution.y).max(axis=1)):
                 break

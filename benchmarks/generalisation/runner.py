@@ -1,5 +1,7 @@
 """Phase 2: identify every case with the library as a user would, blind to the truth.
 
+Linear part (issue 20), :func:`answer`:
+
 Each case's NPZ gives what a user has: forces, responses, fs, periods, output quantity,
 channel names and the band of the excitation they designed. The library runs with its
 defaults (:class:`fnsi.identification.IdentificationSettings` with only the band given:
@@ -17,6 +19,7 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -28,17 +31,27 @@ from benchmarks.generalisation.blind import (
     read_index,
     write_json,
 )
+from fnsi.errors import json_float
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.measurement import Measurement
+from fnsi.study import Study
+
+#: Diagnosis rounds of the study loop (issue 21: both effects of a pair in two rounds).
+ROUNDS = 2
+
+
+def _measurement(data, suffix: str = "") -> Measurement:
+    """The record ``u<suffix>``, ``y<suffix>`` of a case file as a measurement."""
+    return Measurement.from_arrays(
+        data["u" + suffix], data["y" + suffix], float(data["fs"]),
+        periods=int(data["periods"]), quantity=str(data["quantity"]),
+        input_names=data["input_names"], output_names=data["output_names"])
 
 
 def answer(path: Path) -> dict:
     """The library's answer for one case file (never reads anything else)."""
     with np.load(path, allow_pickle=False) as data:
-        measurement = Measurement.from_arrays(
-            data["u"], data["y"], float(data["fs"]), periods=int(data["periods"]),
-            quantity=str(data["quantity"]), input_names=data["input_names"],
-            output_names=data["output_names"])
+        measurement = _measurement(data)
         band = tuple(float(b) for b in data["band"])
     settings = IdentificationSettings(band=band)
     start = time.perf_counter()
@@ -74,23 +87,70 @@ def _modes(table) -> list[dict]:
                                strict=True)]
 
 
-def run(root: Path, progress: Callable[[str, dict], None] | None = None) -> None:
+def answer_study(path: Path) -> dict:
+    """The study loop's answer for one hidden-effect case file (module docstring)."""
+    with np.load(path, allow_pickle=False) as data:
+        estimation, validation = _measurement(data), _measurement(data, "_validation")
+        band = tuple(float(b) for b in data["band"])
+    start = time.perf_counter()
+    rounds: list[dict] = []
+    try:
+        study = Study.create(estimation, validation, IdentificationSettings(band=band))
+        create_s = time.perf_counter() - start
+        for _ in range(ROUNDS):
+            start = time.perf_counter()
+            diagnosis = study.diagnose()
+            rounds.append({"diagnosis_s": time.perf_counter() - start,
+                           "found": diagnosis.found, "summary": diagnosis.summary,
+                           "nrmse_before_pct": json_float(diagnosis.nrmse_before_percent),
+                           "candidates": [c.to_json() for c in diagnosis.candidates]})
+            if not diagnosis.found:
+                break
+            top = diagnosis.candidates[0]
+            if top.element is not None:
+                study.add_revision(add=[top.element], note=top.effect.value)
+            else:
+                study.add_revision(order=top.order, note="one more mode")
+    except Exception as error:  # a refusal or a crash is the library's answer too
+        return {"status": "error", "error": f"{type(error).__name__}: {error}",
+                "where": traceback.format_exc(limit=-2), "rounds": rounds}
+    return {"status": "ok", "create_s": create_s, "rounds": rounds,
+            "noise_floor_pct": json_float(study.noise_floor_percent),
+            "revisions": [{"note": r.note, "order": r.identified_order,
+                           "elements": [e.to_json() for e in r.elements],
+                           "nrmse_pct": json_float(r.nrmse_percent), "failure": r.failure}
+                          for r in study.revisions]}
+
+
+def _answer_case(task: tuple[Path, str, bool]) -> tuple[str, dict]:
+    """Answer one case and write it (a process-pool task, blindfolded in its process)."""
+    root, case, hidden = task
+    with blindfold(root):
+        path = cases_dir(root) / f"{case}.npz"
+        result = {"case": case, **(answer_study(path) if hidden else answer(path))}
+        write_json(answer_path(root, case), result)
+    return case, result
+
+
+def run(root: Path, progress: Callable[[str, dict], None] | None = None,
+        jobs: int = 1) -> None:
     """Answer every case of ``root`` without an answer yet (phase 2; resumable).
 
     Parameters
     ----------
     root : path
-        Benchmark directory written by :func:`.cases.generate`.
+        Benchmark directory written by :func:`.cases.generate` or
+        :func:`.hidden.generate_hidden` (the index says which part).
     progress : callable(case, answer), optional
         Called after each answer is written.
+    jobs : int
+        Processes answering cases in parallel (each under its own blindfold).
     """
-    cases = read_index(root)["cases"]
-    with blindfold(root):
-        for case in cases:
-            target = answer_path(root, case)
-            if target.is_file():
-                continue
-            result = {"case": case, **answer(cases_dir(root) / f"{case}.npz")}
-            write_json(target, result)
+    index = read_index(root)
+    hidden = index.get("part") == "hidden"
+    tasks = [(Path(root), case, hidden) for case in index["cases"]
+             if not answer_path(root, case).is_file()]
+    with blindfold(root), ProcessPoolExecutor(max_workers=jobs) as pool:
+        for case, result in pool.map(_answer_case, tasks):
             if progress is not None:
                 progress(case, result)

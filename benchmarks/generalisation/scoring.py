@@ -194,7 +194,7 @@ def score_all(root: Path, progress: Callable[[str], None] | None = None) -> list
 
 # -- the table -------------------------------------------------------------------------------
 
-def _bin(value: float, edges: tuple[float, ...], unit: str = "") -> str:
+def bin_label(value: float, edges: tuple[float, ...], unit: str = "") -> str:
     """Label of the bin [low, high) of ``value`` among consecutive ``edges`` (the last bin
     takes what rounding puts at or just above its upper edge)."""
     low, high = next((pair for pair in itertools.pairwise(edges) if value < pair[1]),
@@ -214,8 +214,8 @@ GROUPS: tuple[tuple[str, Callable[[dict], str]], ...] = (
     ("DOFs", lambda p: _count_bin(p["dofs"], (2, 5, 9, 13))),
     ("damping", lambda p: p["damping"]),
     ("close modes", lambda p: "yes" if p["close_modes"] else "no"),
-    ("noise", lambda p: _bin(p["noise_pct"], (0, 0.1, 0.5, 2, 5), " %")),
-    ("fs / band edge", lambda p: _bin(p["fs_ratio"], (4, 10, 20, 40))),
+    ("noise", lambda p: bin_label(p["noise_pct"], (0, 0.1, 0.5, 2, 5), " %")),
+    ("fs / band edge", lambda p: bin_label(p["fs_ratio"], (4, 10, 20, 40))),
     ("output", lambda p: p["quantity"]),
     ("inputs", lambda p: str(p["inputs"])),
     ("sensors", lambda p: _count_bin(p["sensors"], (1, 2, 5, 9))),
