@@ -5,7 +5,7 @@ a queue no worker consumes) run for ``--sequences`` sequences of up to ``--steps
 failures are counted, not raised, so the run reports them all.
 
 Last output line: one JSON object {"requests", "server_errors", "violations",
-"statuses", "seconds"}. Run from the repository root:
+"followed_links", "statuses", "seconds"}. Run from the repository root:
 ``.venv/bin/python -m benchmarks.fuzz`` (needs the Redis at FNSI_REDIS_URL).
 """
 
@@ -27,8 +27,8 @@ def main() -> None:
     args = parser.parse_args()
     tally = Tally()
     start = time.perf_counter()
-    with fuzzed_app("fuzz-bench") as fuzzed:
-        machine = state_machine(fuzzed, tally, raise_failures=False)
+    with fuzzed_app("fuzz-bench", tenants=2 * args.sequences) as fuzzed:
+        machine = state_machine(fuzzed, tally)
         machine.run(settings=settings(max_examples=args.sequences, stateful_step_count=args.steps,
                                       deadline=None, database=None,
                                       suppress_health_check=list(HealthCheck)))
@@ -38,7 +38,7 @@ def main() -> None:
     for failure in sorted(set(tally.failures)):
         print(f"FAILED  {failure}")
     print(json.dumps({"requests": tally.requests, "server_errors": tally.server_errors,
-                      "violations": tally.violations,
+                      "violations": tally.violations, "followed_links": tally.followed,
                       "statuses": {str(k): v for k, v in sorted(tally.statuses.items())},
                       "seconds": round(seconds, 1)}))
 

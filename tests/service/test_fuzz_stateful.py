@@ -17,12 +17,13 @@ SEQUENCES, STEPS = 40, 10
 
 def test_call_sequences_get_documented_answers_and_no_server_error():
     tally = Tally()
-    with fuzzed_app("stateful") as fuzzed:
-        machine = state_machine(fuzzed, tally, raise_failures=True)
+    with fuzzed_app("stateful", tenants=2 * SEQUENCES) as fuzzed:
+        machine = state_machine(fuzzed, tally)
         machine.run(settings=settings(max_examples=SEQUENCES, stateful_step_count=STEPS,
                                       deadline=None, database=None, derandomize=True,
                                       suppress_health_check=list(HealthCheck)))
     assert tally.requests >= 200, tally
-    assert tally.server_errors == 0 and tally.violations == 0, tally.failures
-    # the links were followed: created objects were fetched, not only 404s
-    assert sum(n for status, n in tally.statuses.items() if status < 300) > tally.requests / 5
+    assert tally.server_errors == 0 and tally.violations == 0, sorted(set(tally.failures))
+    # the links were followed: objects created in a sequence were fetched, revised or
+    # cancelled by id (random ids alone give only 404s)
+    assert tally.followed >= 10, tally
