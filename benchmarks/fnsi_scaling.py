@@ -1,4 +1,4 @@
-"""Wall time of each FNSI stage and peak memory on synthetic data (DESIGN.md section 5).
+"""Wall time of each FNSI stage and peak memory on synthetic data (docs/design.md section 5).
 
 Synthetic periodic records shaped like the paper's workloads: 8 periods of 30,000 samples
 at 2.5 kHz (2 discarded), 3,240 lines in 5-50 Hz, the response of a random 9-mode linear

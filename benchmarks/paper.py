@@ -1,4 +1,4 @@
-"""Reproduce the paper's Section IV on our SmallSat model (DESIGN.md section 5).
+"""Reproduce the paper's Section IV on our SmallSat model (docs/design.md section 5).
 
 Four reference workloads, each identified with the library exactly as a user would
 (:func:`fnsi.identification.identify`) from the simulated SmallSat tests of

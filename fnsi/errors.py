@@ -5,7 +5,7 @@ The identified model is simulated with the measured periodic input (see
 steady-state periods, in the time domain (normalised RMS error per channel) and per
 frequency line. Period-to-period variation of a periodic measurement is noise only, so it
 gives the level a perfect model would reach: the noise floor, in the same units as each
-error (DESIGN.md Section 3, step 7).
+error (docs/design.md section 3, step 7).
 
 Conventions: records are ``(samples, channels)`` or ``(realisations, samples,
 channels)`` with ``samples = periods * period_length``; spectra are ``(lines,

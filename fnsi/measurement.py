@@ -22,7 +22,7 @@ QUANTITIES: tuple[str, ...] = get_args(Quantity)
 FileLike = str | Path | IO
 
 NPZ_VARIABLES = ("u", "y", "fs", "input_names", "output_names", "periods", "quantity")
-"""The arrays of the canonical NPZ dataset (DESIGN.md section 6)."""
+"""The arrays of the canonical NPZ dataset (docs/design.md section 6)."""
 
 NOT_A_ZIP = ("not an NPZ (zip) file: save the arrays with numpy.savez or "
              "numpy.savez_compressed, or name the file after its real format")
@@ -309,7 +309,7 @@ class Measurement:
     # -- NPZ -------------------------------------------------------------------------------
     @classmethod
     def from_npz(cls, file: FileLike) -> Measurement:
-        """Read the canonical NPZ dataset (DESIGN.md section 6), never unpickling.
+        """Read the canonical NPZ dataset (docs/design.md section 6), never unpickling.
 
         Arrays ``u`` and ``y`` (2-D samples x channels, 1-D, or 3-D with realisations first),
         scalar ``fs``; optional ``input_names``, ``output_names``, ``periods``, ``quantity``.

@@ -60,7 +60,7 @@ Structure (r = 48 DOFs, translations only, lumped diagonal mass matrix)
   K_s the stiffness of every element except the WEMS elastomer, plus dashpots
   (``bracket_damping``) in the bolted bracket-to-wall joint.
 
-Measured DOFs are the 13 nodes of DESIGN.md Section 4 times X, Y, Z, named
+Measured DOFs are the 13 nodes of docs/design.md section 4 times X, Y, Z, named
 ``<node>_<axis>`` (``NC2w_Z``, ``IP3_X``), in this order: NC1w..NC4w, NC1b..NC4b, W,
 IP1..IP4; the internal DOFs ``TEL_*``, ``TOP_*`` and ``WALL_*`` follow.
 

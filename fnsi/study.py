@@ -1,4 +1,5 @@
-"""A modelling study: revisions of an FNSI model judged on validation data (DESIGN.md 3.7).
+"""A modelling study: revisions of an FNSI model judged on validation data
+(docs/design.md section 3, step 7).
 
 A study holds an estimation dataset, a validation dataset (another realisation or
 amplitude of the excitation), optional declared connections (pairs of channels a physical

@@ -1,7 +1,7 @@
 """Model versus measurement: run an identified model with the measured input.
 
-DESIGN.md step 7. The identified nonlinear state-space model is driven to periodic
-steady state by one period of each realisation's measured input
+docs/design.md section 3, step 7. The identified nonlinear state-space model is driven to
+periodic steady state by one period of each realisation's measured input
 (:func:`fnsi.simulation.simulate_periodic`); FNSI models predict displacement, so the
 prediction is differentiated exactly (periodic data) into the measured quantity and
 compared with the kept periods of the measurement (:func:`fnsi.errors.model_errors`),

@@ -26,7 +26,7 @@ request can ask for before the library sees it."""
 
 class _Element(RequestModel):
     """What every nonlinear element has: a restoring force f(x, v) between two output
-    channels (or one channel and ground), x = y[dof] - y[ref] (DESIGN.md JSON shape)."""
+    channels (or one channel and ground), x = y[dof] - y[ref] (docs/design.md section 6)."""
 
     kind: NonlinearityKind = Field(description="Functional form of the restoring force.")
     dof: str = Field(description="Output channel on which +f acts.", examples=["NC2w_Z"])

@@ -40,7 +40,7 @@ def _check_size(samples: int, fs: float, fs_int: float) -> None:
 
 
 class PresetSimulation(RequestModel):
-    """Simulated test of the SmallSat reference structure (DESIGN.md section 4).
+    """Simulated test of the SmallSat reference structure (docs/design.md section 4).
 
     ``single``: 100 N RMS at NC2w_Z (paper Table 3); ``multi``: 200 N RMS at the wheel W
     along the X-Y diagonal (Table 8). The result is a new dataset; the truth (modes,

@@ -16,11 +16,11 @@ _CLEARANCE = {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5}
 
 
 class StudyRequest(IdentificationRequest):
-    """A modelling study (DESIGN.md 3.7): an estimation and a validation dataset of the
-    same test set-up and a starting model (order, nonlinear elements), identified and
-    validated as revision 0. Every later revision shares these identification settings
-    (channels, band, block rows, lines, weighting) and changes only its order and
-    elements."""
+    """A modelling study (docs/design.md section 3, step 7): an estimation and a
+    validation dataset of the same test set-up and a starting model (order, nonlinear
+    elements), identified and validated as revision 0. Every later revision shares these
+    identification settings (channels, band, block rows, lines, weighting) and changes
+    only its order and elements."""
 
     model_config = ConfigDict(json_schema_extra={"examples": [{
         "dataset_id": "ds_5f1c0e2a9b7d4c3e8a10", "validation_dataset_id": "ds_93ab1c0e2a9b7d4c3e8a",
@@ -131,8 +131,8 @@ class Candidate(BaseModel):
     effect: Effect = Field(description="Kind of missing effect.")
     element: dict[str, Any] | None = Field(
         None, description="Element to add, in the JSON shape of NonlinearElementSpec "
-        "(DESIGN.md) with its identified coefficients: POST it as a revision's `add`. Null "
-        "for a missing mode.", examples=[{**_CLEARANCE, "coefficients": [98.5]}])
+        "with its identified coefficients: POST it as a revision's `add`. Null for a "
+        "missing mode.", examples=[{**_CLEARANCE, "coefficients": [98.5]}])
     order: int = Field(description="Model order of the validated model.", examples=[10])
     location: Location | None = Field(None, description="Where it acts; null for a mode.")
     validation_nrmse_percent: float | None = Field(

@@ -185,7 +185,8 @@ def test_inconsistent_models_and_inputs_are_rejected(force):
 
 
 def test_identified_model_reproduces_the_measurement_near_the_noise_floor():
-    """End to end: Newmark truth -> FNSI model -> simulation -> errors (DESIGN.md step 7)."""
+    """End to end: Newmark truth -> FNSI model -> simulation -> errors (docs/design.md
+    section 3, step 7)."""
     from fnsi.acquisition import acquire
     from fnsi.errors import model_errors
     from fnsi.excitation import Excitation, periodic_noise

@@ -139,7 +139,7 @@ def test_health_reports_the_execution_mode(stack):
 
 
 def test_smallsat_preset_simulates_and_identifies_the_clearance(stack):
-    """The paper's single-input case on a short record (DESIGN.md workload single-3)."""
+    """The paper's single-input case on a short record (docs/design.md workload single-3)."""
     with stack.client() as client:
         simulation = client.post("/v1/simulations", json={
             "preset": "single", "periods": 3, "samples_per_period": 2500, "seed": 1,
