@@ -181,8 +181,50 @@ def build_parser() -> argparse.ArgumentParser:
     _add_read_options(ident)
     ident.set_defaults(run=_cmd_identify)
 
+    analyse = commands.add_parser(
+        "analyse", help="nonlinear distortion levels before any model (BLA, noise, odd and "
+        "even distortions): prints a verdict, writes analysis.json and distortion.png")
+    analyse.add_argument("dataset", help="dataset file (npz, csv, mat, h5, uff)")
+    analyse.add_argument("-o", "--output", help="folder for analysis.json and distortion.png")
+    analyse.add_argument("--inputs", help="comma-separated input channels (a CSV needs them)")
+    analyse.add_argument("--outputs", help="comma-separated output channels (default all)")
+    analyse.add_argument("--discard-periods", type=int, default=1,
+                         help="leading transient periods left out (default 1)")
+    _add_read_options(analyse)
+    analyse.set_defaults(run=_cmd_analyse)
+
     _add_study_commands(commands)
     return parser
+
+
+def _cmd_analyse(args: argparse.Namespace) -> int:
+    from fnsi.distortion import analyse_distortion
+    from fnsi.plots import plot_distortion
+
+    measurement = _read(args.dataset, args)
+    if args.outputs:
+        measurement = measurement.select(outputs=_channels(args.outputs))
+    analysis = analyse_distortion(measurement, discard_periods=args.discard_periods)
+    print(f"{'output':<14} {'excited':>9} {'odd':>9} {'even':>9} {'above':>9}  "
+          "[dB over the noise; * above it]")
+    for channel in analysis.channels:
+        cells = [_group_cell(g) for g in (channel.excited, channel.odd, channel.even,
+                                          channel.above_band)]
+        print(f"{channel.name:<14} " + " ".join(f"{c:>9}" for c in cells))
+    print(analysis.verdict)
+    if args.output:
+        folder = Path(args.output)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "analysis.json").write_text(json.dumps(analysis.to_json(), indent=2))
+        (folder / "distortion.png").write_bytes(plot_distortion(analysis, unit="output unit"))
+        print(f"wrote {folder / 'analysis.json'} and {folder / 'distortion.png'}")
+    return 0
+
+
+def _group_cell(group) -> str:
+    if group.lines == 0:
+        return "-"
+    return f"{group.level_db:.1f}{'*' if group.above_noise else ''}"
 
 
 def _add_read_options(parser: argparse.ArgumentParser) -> None:

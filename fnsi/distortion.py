@@ -142,6 +142,22 @@ class DistortionAnalysis:
         """One paragraph with the numbers: how nonlinear, which class, what can be told."""
         return _verdict(self)
 
+    def to_json(self) -> dict:
+        """The summary as JSON: band [Hz], design, levels [dB] and p-values per output and
+        group of lines, and the verdict (the per-line levels stay in the arrays)."""
+        def group(g: LineGroup) -> dict:
+            finite = g.lines > 0
+            return {"lines": g.lines, "level_db": round(g.level_db, 2) if finite else None,
+                    "p_value": float(f"{g.p_value:.3g}") if finite else None,
+                    "above_noise": g.above_noise}
+
+        return {"band_hz": list(self.band), "odd_design": self.odd_design,
+                "realisations": self.realisations, "periods": self.periods,
+                "channels": [{"name": c.name, "excited": group(c.excited),
+                              "odd": group(c.odd), "even": group(c.even),
+                              "above_band": group(c.above_band)} for c in self.channels],
+                "verdict": self.verdict}
+
 
 def analyse_distortion(measurement: Measurement, *, discard_periods: int = 1,
                        excited: np.ndarray | None = None) -> DistortionAnalysis:

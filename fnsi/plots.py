@@ -18,6 +18,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from fnsi.distortion import DistortionAnalysis
 from fnsi.errors import ModelErrors
 from fnsi.nonlinear import NonlinearElement, NonlinearityKind
 from fnsi.stabilisation import PoleClass, StabilisationDiagram
@@ -449,3 +450,83 @@ def plot_errors(errors: ModelErrors, *, outputs: Sequence[str] | None = None,
         ax.set_visible(False)
     figure.suptitle(title)
     return png_bytes(figure)
+
+
+def _db(x: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return 20 * np.log10(x)
+
+
+def plot_distortion(analysis: DistortionAnalysis, *, outputs: Sequence[str] | None = None,
+                    unit: str = "m") -> bytes:
+    """Output, noise and nonlinear distortion levels against frequency, one panel per output.
+
+    The classic figure of the nonparametric distortion analysis: the output on the
+    excited lines, the noise level, the stochastic distortion level on the excited lines
+    (several realisations), and the output on the non-excited odd and even lines and
+    above the band, all in dB of the output unit.
+
+    Parameters
+    ----------
+    analysis : DistortionAnalysis
+        From :func:`fnsi.distortion.analyse_distortion`.
+    outputs : sequence of str, optional
+        Channels to draw; default the six with the strongest odd or even distortions.
+    unit : str
+        Output unit for the axis label.
+
+    Returns
+    -------
+    bytes
+        PNG content.
+    """
+    names = list(outputs) if outputs is not None else _strongest_outputs(analysis, 6)
+    unknown = [n for n in names if n not in analysis.output_names]
+    if unknown or not names:
+        raise ValueError(f"unknown or no outputs {unknown}; choose among "
+                         f"{list(analysis.output_names)}")
+    rows, columns = panel_grid(len(names))
+    figure = new_figure(5.5 * columns, 3.6 * rows)
+    axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
+    f = analysis.frequencies
+    excited = analysis.excited.all(axis=0)
+    quiet = ~analysis.excited.any(axis=0)
+    odd = (np.round(f / f[0]).astype(int) % 2 == 1) if f.size else quiet
+    low, high = analysis.band
+    for ax, name in zip(axes, names, strict=False):
+        j = analysis.output_names.index(name)
+        level = _db(analysis.output[:, j])
+        ax.plot(f[excited], level[excited], "k.", ms=3, label="output, excited lines")
+        ax.plot(f[quiet & odd], level[quiet & odd], "x", color="tab:blue", ms=4,
+                label="odd non-excited lines")
+        ax.plot(f[quiet & ~odd], level[quiet & ~odd], "+", color="tab:green", ms=4,
+                label="even non-excited lines")
+        ax.plot(f[excited], _db(analysis.distortion[excited, j]), ".", color="tab:red",
+                ms=3, label="nonlinear distortion")
+        ax.plot(f, _db(analysis.noise[:, j]), color="0.55", lw=0.8, label="noise")
+        ax.axvspan(low, high, color="0.93", zorder=0)
+        channel = analysis.channels[j]
+        ax.set_title(f"{name}: odd {_level_text(channel.odd)}, even "
+                     f"{_level_text(channel.even)} over the noise", fontsize="medium")
+        ax.set_xlabel("Frequency [Hz]")
+        ax.set_ylabel(f"Level [dB re 1 {unit}]")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize="x-small", loc="lower left")
+    for ax in axes[len(names):]:
+        ax.set_visible(False)
+    figure.suptitle(f"Nonlinear distortions ({analysis.realisations} realisation(s), "
+                    f"{analysis.periods} periods; band shaded)")
+    return png_bytes(figure)
+
+
+def _level_text(group) -> str:
+    return "-" if group.lines == 0 else f"{group.level_db:.0f} dB"
+
+
+def _strongest_outputs(analysis: DistortionAnalysis, count: int) -> list[str]:
+    def strength(c) -> float:
+        levels = [g.level_db for g in (c.odd, c.even, c.excited) if g.lines]
+        return max(levels, default=-np.inf)
+
+    ranked = sorted(analysis.channels, key=strength, reverse=True)
+    return [c.name for c in ranked[:count]]

@@ -4,6 +4,8 @@ response minus the linearised one, and symmetric and one-sided stops are told ap
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -124,3 +126,19 @@ def test_smallsat_single_shows_odd_distortions_only_when_the_stop_is_hit(rms, no
         if nonlinear:
             assert channels[name].odd.level_db > 20
     assert not any(c.even.above_noise for c in analysis.channels)
+
+
+def test_the_command_line_prints_the_verdict_and_writes_json_and_figure(chain, linear_chain,
+                                                                         tmp_path, capsys):
+    from fnsi.cli import main
+
+    stop = NonlinearElement("clearance", "a", None, gap=1.2 * linear_rms(linear_chain),
+                            coefficients=(3 * linear_chain.K[0, 0],))
+    record(chain(2, [stop])).to_npz(tmp_path / "stop.npz")
+    assert main(["analyse", str(tmp_path / "stop.npz"), "-o", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    assert "odd nonlinear distortions" in printed and "distortion.png" in printed
+    summary = json.loads((tmp_path / "out" / "analysis.json").read_text())
+    assert summary["odd_design"] and summary["channels"][0]["odd"]["above_noise"]
+    png = (tmp_path / "out" / "distortion.png").read_bytes()
+    assert png.startswith(b"\x89PNG") and len(png) > 20_000  # four drawn panels, not blank
