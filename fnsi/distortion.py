@@ -195,11 +195,7 @@ def analyse_distortion(measurement: Measurement, *, discard_periods: int = 1,
     >>> [c.odd.above_noise for c in a.channels], a.channels[0].even.above_noise
     ([True, False], False)
     """
-    kept = measurement.periods - discard_periods
-    if kept < 2:
-        raise ValueError(f"the distortion analysis needs at least two periods after the "
-                         f"{discard_periods} discarded; the record has {measurement.periods}: "
-                         "measure more periods (the noise comes from their scatter)")
+    kept = check_periods(measurement.periods, discard_periods)
     N = measurement.period_length
     U = _period_spectra(kept_record(measurement.u, measurement.periods, discard_periods), kept)
     Y = _period_spectra(kept_record(measurement.y, measurement.periods, discard_periods), kept)
@@ -209,6 +205,19 @@ def analyse_distortion(measurement: Measurement, *, discard_periods: int = 1,
     U, Y, driven, frequencies = U[:, :, lines], Y[:, :, lines], driven[:, lines], \
         frequencies[lines]
     return _analysis(measurement, U, Y, driven, frequencies, lines)
+
+
+def check_periods(periods: int, discard_periods: int) -> int:
+    """Periods kept after ``discard_periods``; ValueError unless at least two (the noise
+    comes from their scatter)."""
+    if discard_periods < 0:
+        raise ValueError(f"discard_periods must be >= 0; got {discard_periods}")
+    kept = periods - discard_periods
+    if kept < 2:
+        raise ValueError(f"the distortion analysis needs at least two periods after the "
+                         f"{discard_periods} discarded; the record has {periods}: measure "
+                         "more periods (the noise comes from their scatter) or discard fewer")
+    return kept
 
 
 def _period_spectra(x: np.ndarray, periods: int) -> np.ndarray:

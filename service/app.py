@@ -16,6 +16,7 @@ from service.limits import BodyLimitMiddleware
 from service.problems import FieldError, Problem
 from service.queue import Supervisor, make_queue
 from service.routes import (
+    analyses,
     artefacts,
     batches,
     datasets,
@@ -36,6 +37,8 @@ TAGS = [
     {"name": "datasets", "description": "Measured or simulated input-output records."},
     {"name": "simulations", "description": "Simulated tests of the SmallSat structure."},
     {"name": "identifications", "description": "FNSI identification of nonlinear models."},
+    {"name": "analyses", "description": "Nonlinear distortion levels before any model: "
+     "is the structure nonlinear, how much, and of which law."},
     {"name": "batches", "description": "Many jobs in one request."},
     {"name": "jobs", "description": "Status, progress, results and cancellation of jobs."},
     {"name": "artefacts", "description": "Plots, JSON results and models of a job."},
@@ -112,7 +115,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(datasets.router, form_limits={"max_files": 1, "max_fields": 1,
                                     "max_part_size": settings.max_meta_bytes})
-    for module in (simulations, identifications, batches, jobs, artefacts, studies):
+    for module in (simulations, identifications, analyses, batches, jobs, artefacts, studies):
         app.include_router(module.router)
     app.openapi = lambda: _openapi(app)
     return app

@@ -4,31 +4,49 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
+from fnsi.distortion import check_periods
 from fnsi.identification import check_settings
 from fnsi.measurement import Layout
 from service.deps import require_dataset
 from service.problems import ProblemError
 from service.queue import JobQueue
+from service.schemas.analyses import AnalysisRequest
 from service.schemas.identifications import IdentificationRequest
 from service.store import JobRecord, Store
 from worker.identifications import settings_of
+
+
+def layout_of(summary: dict) -> Layout:
+    """The shape of a dataset from its stored summary (the arrays are never loaded)."""
+    return Layout(fs=summary["fs"], periods=summary["periods"],
+                  period_length=summary["period_length"],
+                  n_realisations=summary["realisations"],
+                  input_names=tuple(summary["inputs"]), output_names=tuple(summary["outputs"]))
 
 
 def check_dimensions(summary: dict, request: dict, memory_limit_mb: float) -> None:
     """The library's checks of an identification (request JSON) against the dataset's
     shape (:func:`fnsi.identification.check_settings`), made on the layout in the dataset
     summary so the API never loads the arrays (ValueError naming the fix)."""
-    layout = Layout(fs=summary["fs"], periods=summary["periods"],
-                    period_length=summary["period_length"],
-                    n_realisations=summary["realisations"],
-                    input_names=tuple(summary["inputs"]), output_names=tuple(summary["outputs"]))
-    check_settings(layout, settings_of(request, memory_limit_mb))
+    check_settings(layout_of(summary), settings_of(request, memory_limit_mb))
+
+
+def check_analysis(store: Store, owner: str, request: AnalysisRequest, where: str) -> None:
+    """The dataset exists, the outputs are its own (each once), two periods remain."""
+    dataset = require_dataset(store, owner, request.dataset_id, f"{where}dataset_id")
+    try:
+        layout_of(dataset.summary).select(outputs=request.outputs)
+        check_periods(dataset.summary["periods"], request.discard_periods)
+    except ValueError as err:
+        raise ProblemError(422, f"{where or 'request: '}{err}") from None
 
 
 def check_request(store: Store, owner: str, kind: str, request: BaseModel,
                   memory_limit_mb: float, where: str = "") -> None:
     """Reject now (422) what would only fail later in the worker: unknown datasets or
     channels. ``where`` prefixes messages (e.g. ``jobs[3].request.``) in a batch."""
+    if isinstance(request, AnalysisRequest):
+        check_analysis(store, owner, request, where)
     if not isinstance(request, IdentificationRequest):
         return
     dataset = require_dataset(store, owner, request.dataset_id, f"{where}dataset_id")

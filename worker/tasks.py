@@ -6,6 +6,7 @@ from typing import Any
 
 from service.settings import Settings
 from service.store import Claim
+from worker.analyses import analyse_job
 from worker.identifications import identify_job
 from worker.runner import Task, run_job
 from worker.simulations import simulate_job
@@ -13,7 +14,7 @@ from worker.studies import create_study_job, diagnose_study_job, revise_study_jo
 
 TASKS: dict[str, Task] = {"simulation": simulate_job, "identification": identify_job,
                           "study": create_study_job, "study_revision": revise_study_job,
-                          "study_diagnosis": diagnose_study_job}
+                          "study_diagnosis": diagnose_study_job, "analysis": analyse_job}
 
 
 def execute(job_id: str, settings: dict[str, Any] | Settings,

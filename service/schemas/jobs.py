@@ -20,6 +20,7 @@ class JobKind(StrEnum):
     STUDY = "study"
     STUDY_REVISION = "study_revision"
     STUDY_DIAGNOSIS = "study_diagnosis"
+    ANALYSIS = "analysis"
 
 
 class Job(BaseModel):
@@ -43,7 +44,7 @@ class Job(BaseModel):
         description="Outcome once succeeded: {\"dataset_id\": ...} for a simulation, "
         "the identification result for an identification; for a study or study_revision "
         "the revision number and error history, for a study_diagnosis the ranked "
-        "candidates.")
+        "candidates, for an analysis the distortion levels and verdict.")
     error: str | None = Field(None, description="Why the job failed, and what to change.")
 
     @classmethod

@@ -185,5 +185,44 @@ class DiagnosisJobResult(_Document):
 # Exactly one kind matches a document: each has required fields the others lack. A
 # document of none of these shapes (e.g. stored by an older worker) is still served, as a
 # plain object, rather than failing the response.
+class LineGroupLevel(_Document):
+    """Output power against noise power over a group of lines of one output."""
+
+    lines: int = Field(description="Lines in the group (0: the excitation leaves none).",
+                       examples=[228])
+    level_db: float | None = Field(description="10 log10(output power / noise power) "
+                                   "[dB]; 0 dB is noise alone. Null when empty.",
+                                   examples=[45.7])
+    p_value: float | None = Field(description="Probability of this level from noise alone "
+                                  "(F test). Null when empty.", examples=[2.1e-45])
+    above_noise: bool = Field(description="p below 0.001 and at least 1 dB.")
+
+
+class ChannelDistortionLevels(_Document):
+    """The distortion levels of one output."""
+
+    name: str = Field(description="Output channel.", examples=["NC2w_Z"])
+    excited: LineGroupLevel = Field(description="Excited lines: the BLA's scatter over "
+                                    "realisations against its noise (R >= 2, one input).")
+    odd: LineGroupLevel = Field(description="Non-excited odd lines in the band.")
+    even: LineGroupLevel = Field(description="Non-excited even lines in the band.")
+    above_band: LineGroupLevel = Field(description="Lines above the band, up to three "
+                                       "times its upper edge.")
+
+
+class AnalysisJobResult(_Document):
+    """Result of an analysis job: nonlinear distortion levels and the verdict."""
+
+    band_hz: list[float] = Field(description="Lowest and highest excited line [Hz].",
+                                 examples=[[5.5, 49.5]])
+    odd_design: bool = Field(description="Only odd lines are excited, so odd and even "
+                             "distortions are told apart.")
+    realisations: int = Field(description="Realisations analysed.", examples=[1])
+    periods: int = Field(description="Periods kept.", examples=[2])
+    channels: list[ChannelDistortionLevels] = Field(description="Levels per output.")
+    verdict: str = Field(description="How nonlinear, which law, what can be told, in "
+                         "words with the numbers.")
+
+
 JobResult = (SimulationJobResult | IdentificationJobResult | StudyJobResult
-             | DiagnosisJobResult | dict[str, Any])
+             | DiagnosisJobResult | AnalysisJobResult | dict[str, Any])
