@@ -33,11 +33,15 @@ def list_artefacts(job: OwnJobDep, store: StoreDep) -> list[Artefact]:
             for name, size in store.list_artefacts(job.id)]
 
 
+# Every artefact is a file, whatever its media type: declared binary in each (octet-stream
+# first), so generated clients return its bytes instead of parsing a PNG as JSON.
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+
+
 @router.get("/{name}", summary="Download an artefact", response_class=Response,
             responses={200: {"description": "The artefact file.", "content": {
-                "image/png": {"schema": {"type": "string", "format": "binary"}},
-                "application/json": {"schema": {"type": "object"}},
-                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}})
+                media: _BINARY for media in ("application/octet-stream", "image/png",
+                                             "application/json", "text/csv")}}})
 def get_artefact(job: OwnJobDep, store: StoreDep,
                  name: Annotated[str, Path(description="Artefact name, e.g. frf.png.")]
                  ) -> Response:

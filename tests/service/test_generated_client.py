@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib
 import io
-import json
 import os
 import subprocess
 import sys
@@ -17,50 +16,41 @@ from tests.service import servers
 from tests.service.test_end_to_end import IDENTIFICATION, PNG
 from tests.service.test_simulations import REQUEST as MODEL_SIMULATION
 
-# Problem documents parse as JSON models; binary downloads come back as File payloads.
-GENERATOR_CONFIG = {
-    "package_name_override": "fnsi_client",
-    "project_name_override": "fnsi-client",
-    "post_hooks": [],
-    "content_type_overrides": {"application/problem+json": "application/json",
-                               "image/png": "application/octet-stream",
-                               "text/csv": "application/octet-stream"},
-}
-
 
 @pytest.fixture(scope="module")
 def fnsi_client(embedded_stack, tmp_path_factory):
-    """The generated package, imported from a temporary folder."""
+    """The package generated with the README's command exactly (no configuration file),
+    in a shell where the virtual environment is active, imported from the project folder
+    it writes."""
     folder = tmp_path_factory.mktemp("generated")
-    config = folder / "config.json"
-    config.write_text(json.dumps(GENERATOR_CONFIG))
-    subprocess.run([str(servers.BIN / "openapi-python-client"), "generate",
-                    "--url", f"{embedded_stack.url}/openapi.json", "--config", str(config),
-                    "--meta", "none", "--output-path", str(folder / "fnsi_client"),
-                    "--fail-on-warning"],
-                   check=True, capture_output=True, env={**os.environ, "NO_COLOR": "1"})
-    sys.path.insert(0, str(folder))
+    active = {**os.environ, "PATH": f"{servers.BIN}{os.pathsep}{os.environ['PATH']}",
+              "NO_COLOR": "1"}
+    subprocess.run(["openapi-python-client", "generate", "--url",
+                    f"{embedded_stack.url}/openapi.json"], cwd=folder, check=True,
+                   capture_output=True, env=active)
+    project = folder / "fnsi-service-client"
+    sys.path.insert(0, str(project))
     try:
-        yield importlib.import_module("fnsi_client")
+        yield importlib.import_module("fnsi_service_client")
     finally:
-        sys.path.remove(str(folder))
-        for name in [m for m in sys.modules if m.startswith("fnsi_client")]:
+        sys.path.remove(str(project))
+        for name in [m for m in sys.modules if m.startswith("fnsi_service_client")]:
             del sys.modules[name]
 
 
 def test_generated_client_uploads_identifies_and_downloads_a_png(embedded_stack, fnsi_client):
-    from fnsi_client.api.artefacts import get_artefact
-    from fnsi_client.api.datasets import create_dataset
-    from fnsi_client.api.identifications import create_identification
-    from fnsi_client.api.jobs import get_job
-    from fnsi_client.models import (
+    from fnsi_service_client.api.artefacts import get_artefact
+    from fnsi_service_client.api.datasets import create_dataset
+    from fnsi_service_client.api.identifications import create_identification
+    from fnsi_service_client.api.jobs import get_job
+    from fnsi_service_client.models import (
         BodyCreateDataset,
         IdentificationJobResult,
         IdentificationRequest,
         JobState,
         Problem,
     )
-    from fnsi_client.types import File
+    from fnsi_service_client.types import File
 
     with embedded_stack.client() as http:  # a dataset to upload: simulated here
         job = http.post("/v1/simulations", json=MODEL_SIMULATION).json()
