@@ -720,8 +720,9 @@ def stabilisation_diagram(
 
     def contributions(order: int) -> np.ndarray:
         model = decomposition.model(order)
+        modes = poles[chosen.index(order)].modes
         shares[order] = modal_contributions(model.A, model.B[:, :model.n_inputs], model.C,
-                                            fs, contribution_lines, poles[chosen.index(order)].modes)
+                                            fs, contribution_lines, modes)
         return shares[order]
 
     auto_order = choose_order(poles, band, None if contribution_lines is None else contributions,
