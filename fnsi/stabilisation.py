@@ -618,7 +618,7 @@ def stabilisation_diagram(
     tolerances: StabilisationTolerances | None = None,
     persistence: int = 3,
     confirmation: int = 1,
-    contribution_lines: np.ndarray | None = None,
+    contributions: Callable[[int, ModalTable], np.ndarray] | None = None,
     min_contribution: float = 1e-3,
 ) -> StabilisationDiagram:
     """Build the stabilisation diagram from one subspace decomposition.
@@ -656,11 +656,10 @@ def stabilisation_diagram(
         modes whose damping estimate scatters by more than the 5 % tolerance from order to
         order (a 27.6 Hz mode at 0.5 % damping of a two-DOF test with 1 % noise: 0.54,
         0.54, 0.51 % at orders 4, 6, 8).
-    contribution_lines : ndarray, optional
-        Lines [Hz] over which the share of each pole in the fitted response is summed
-        (:func:`modal_contributions`) for the order choice; needs ``decomposition.model(
-        order)`` (B and D by least squares, as :class:`fnsi.subspace.SubspaceDecomposition`
-        gives). None: poles are judged by the diagram alone.
+    contributions : callable(order, modes) -> ndarray, optional
+        Share of each pole of ``modes`` (the order's modal table) in the fitted response
+        over the band (:func:`modal_contributions`), for the order choice; called only
+        for the orders the choice needs. None: poles are judged by the diagram alone.
     min_contribution : float
         Smallest share of a physical pole, see :func:`choose_order`.
 
@@ -718,14 +717,11 @@ def stabilisation_diagram(
             zip(chosen, tables, flags, spans, radii, strict=True)))
     shares: dict[int, np.ndarray] = {}
 
-    def contributions(order: int) -> np.ndarray:
-        model = decomposition.model(order)
-        modes = poles[chosen.index(order)].modes
-        shares[order] = modal_contributions(model.A, model.B[:, :model.n_inputs], model.C,
-                                            fs, contribution_lines, modes)
+    def share(order: int) -> np.ndarray:
+        shares[order] = contributions(order, poles[chosen.index(order)].modes)
         return shares[order]
 
-    auto_order = choose_order(poles, band, None if contribution_lines is None else contributions,
+    auto_order = choose_order(poles, band, None if contributions is None else share,
                               min_contribution)
     poles = tuple(replace(p, contributions=shares.get(p.order)) for p in poles)
     return StabilisationDiagram(
