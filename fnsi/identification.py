@@ -55,7 +55,12 @@ from fnsi.spectra import (
     period_mean,
     transform,
 )
-from fnsi.stabilisation import StabilisationDiagram, modal_contributions, stabilisation_diagram
+from fnsi.stabilisation import (
+    StabilisationDiagram,
+    modal_contributions,
+    reflect_unstable_poles,
+    stabilisation_diagram,
+)
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve, stiffness_curve
 from fnsi.subspace import (
@@ -63,6 +68,7 @@ from fnsi.subspace import (
     auto_block_rows,
     check_dimensions,
     decompose,
+    input_matrices,
     memory_estimate,
 )
 
@@ -521,6 +527,36 @@ def _contributions(decomposition: SubspaceDecomposition
     return shares
 
 
+def _stabilised(model: StateSpaceModel, decomposition: SubspaceDecomposition
+                ) -> tuple[StateSpaceModel, tuple[str, ...]]:
+    """The model with its unstable poles reflected inside the unit circle and B, D fitted
+    again (:func:`fnsi.stabilisation.reflect_unstable_poles`), and a note saying so.
+
+    The automatic order returns an unstable order only when no stable one holds as many
+    physical modes; its unstable poles are not among them (they fit noise or dynamics
+    outside the band), so reflecting them keeps every kept mode and its shape and makes the
+    model simulable. The note names the poles and the change of the fitted response.
+    """
+    A, reflected = reflect_unstable_poles(model.A)
+    if reflected.size == 0:
+        return model, ()
+    spectra = decomposition.spectra
+    B, D = input_matrices(A, model.C, spectra.inputs, spectra.outputs, spectra.z,
+                          noise_covariance=spectra.input_noise_covariance)
+    stable = dataclasses.replace(model, A=A, B=B / decomposition.input_scale,
+                                 D=D / decomposition.input_scale)
+    lines = np.unique(spectra.frequencies)
+    before, after = (m.frequency_response(lines)[:, :, :m.n_inputs] for m in (model, stable))
+    change = 100 * np.linalg.norm(after - before) / np.linalg.norm(before)
+    poles = ", ".join(f"{abs(np.log(complex(z))) * model.fs / (2 * np.pi):.4g} Hz "
+                      f"(|z| = {abs(z):.6f})" for z in reflected if z.imag >= 0)
+    return stable, (f"the automatic order {model.order} had unstable poles, none of them a "
+                    f"kept mode: {poles}; they were reflected inside the unit circle (z -> "
+                    f"1/conj(z): same frequency, damping of opposite sign) and B, D fitted "
+                    f"again, so the model can be simulated; its frequency response over the "
+                    f"band changed by {change:.2g} % (RMS)",)
+
+
 def _instability(model: StateSpaceModel, diagram: StabilisationDiagram | None
                  ) -> tuple[str, ...]:
     """The warning for a model whose linear part is unstable, naming the stable orders."""
@@ -580,11 +616,14 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     order = _choose_order(settings, diagram)
     clock.done("stabilisation", 0.7, f"order {order}")
     model = decomposition.model(order)
+    notes: tuple[str, ...] = ()
+    if settings.order == "auto":
+        model, notes = _stabilised(model, decomposition)
     clock.done("model", 0.85, "B and D estimated")
     result = dataclasses.replace(
         _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
                   clock.timings), separability=separation,
-        warnings=_instability(model, diagram))
+        warnings=notes + _instability(model, diagram))
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
     if not settings.refine:

@@ -410,13 +410,15 @@ def choose_order(poles: Sequence[OrderPoles], band: tuple[float, float],
     takes the one with the most physical poles, the lowest on a tie: a structural mode the
     data hold appears at some order and stays, so the count reaches the number of such
     modes and stays there, while each added order only adds poles that fit noise, which
-    are neither persistent nor contributing. When no simulable order has a physical pole
-    the unstable orders are searched alike (the identification then warns that the model
-    cannot be simulated).
+    are neither persistent nor contributing. An order whose linear part can be simulated
+    (:attr:`OrderPoles.simulable`) is preferred among those with the most physical poles;
+    when none has that many, the lowest unstable one is returned (its unstable poles are
+    never physical, since :func:`fnsi.modal.modal_table` drops them, and the
+    identification reflects them inside the unit circle, :func:`reflect_unstable_poles`).
 
     Contributions cost a least-squares fit of B per order, so they are evaluated lazily:
     the count without them bounds the count with them, and orders are visited from the
-    largest bound down until no remaining order can win.
+    largest bound down until no remaining order can win (each order at most once).
 
     Parameters
     ----------
@@ -450,22 +452,74 @@ def choose_order(poles: Sequence[OrderPoles], band: tuple[float, float],
     >>> choose_order(diagram, (5.0, 50.0))
     6
     """
+    counted: dict[int, int] = {}
+
     def bound(p: OrderPoles) -> int:
         return int(np.sum(physical_mask(p, band)))
 
-    for pool in ([p for p in poles if p.simulable], list(poles)):
-        ranked = sorted((p for p in pool if bound(p) > 0), key=lambda p: (-bound(p), p.order))
-        best: tuple[int, int] | None = None  # (count, order)
-        for p in ranked:
-            if best is not None and (bound(p), -p.order) <= (best[0], -best[1]):
-                break
-            count = bound(p) if contributions is None else int(np.sum(
+    def count(p: OrderPoles) -> int:
+        if p.order not in counted:
+            counted[p.order] = bound(p) if contributions is None else int(np.sum(
                 physical_mask(p, band) & (contributions(p.order) >= min_contribution)))
-            if count > 0 and (best is None or (count, -p.order) > (best[0], -best[1])):
-                best = (count, p.order)
-        if best is not None:
-            return best[1]
-    return None
+        return counted[p.order]
+
+    def best(pool: list[OrderPoles], floor: int = 1) -> tuple[int, int] | None:
+        """(count, order) of the lowest order with the most physical poles (>= floor)."""
+        found: tuple[int, int] | None = None
+        ranked = sorted((p for p in pool if bound(p) >= floor), key=lambda p: (-bound(p), p.order))
+        for p in ranked:
+            if found is not None and (bound(p), -p.order) <= (found[0], -found[1]):
+                break
+            better = found is None or (count(p), -p.order) > (found[0], -found[1])
+            if count(p) >= floor and better:
+                found = (count(p), p.order)
+        return found
+
+    overall = best(list(poles))
+    if overall is None:
+        return None
+    simulable = best([p for p in poles if p.simulable], floor=overall[0])
+    return overall[1] if simulable is None else simulable[1]
+
+
+def reflect_unstable_poles(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """State matrix with every eigenvalue outside the unit circle reflected inside it.
+
+    An eigenvalue z with |z| >= 1 becomes 1 / conj(z): same angle, so the same damped
+    frequency, and the negative damping of the unstable pole turns into the same positive
+    damping. The eigenvectors are kept, so the mode shapes at the outputs are unchanged;
+    the response of the reflected pole keeps its magnitude on the unit circle and changes
+    its phase, so B and D must be fitted again. Conjugate pairs stay pairs and A stays
+    real. A pole exactly on the unit circle (|z| = 1, no damping) is moved to
+    |z| = 1 - 1e-9.
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, n)
+        Discrete-time state matrix.
+
+    Returns
+    -------
+    A : ndarray, shape (n, n)
+        The stabilised state matrix (``A`` itself when nothing is unstable).
+    reflected : ndarray, shape (k,), complex
+        The eigenvalues that were reflected (before reflection).
+
+    Examples
+    --------
+    >>> A = np.array([[1.001, 0.0], [0.0, 0.5]])
+    >>> B, z = reflect_unstable_poles(A)
+    >>> np.round(np.diag(B), 6).tolist(), z.real.tolist()
+    ([0.999001, 0.5], [1.001])
+    """
+    lam, V = np.linalg.eig(A)
+    outside = np.abs(lam) >= 1.0
+    if not outside.any():
+        return A, lam[outside]
+    inside = lam.copy()
+    inside[outside] = 1.0 / np.conj(lam[outside])
+    inside[outside & (np.abs(inside) >= 1.0)] *= 1.0 - 1e-9
+    return np.real(V @ np.diag(inside) @ np.linalg.inv(V)), lam[outside]
 
 
 def physical_mask(poles: OrderPoles, band: tuple[float, float],

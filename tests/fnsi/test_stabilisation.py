@@ -165,11 +165,11 @@ def test_choose_order_takes_the_lowest_order_with_the_most_physical_poles():
 
 def test_choose_order_prefers_a_simulable_order():
     poles = [_order(2, [10.0], [True]), _order(4, [10.0, 20.0], [True, True], 1.0004),
-             _order(6, [10.0, 20.0], [True, True], 1.2)]
-    assert choose_order(poles, (5.0, 50.0)) == 2
-    # no order can be simulated: the most physical poles all the same (the caller warns)
-    unstable = [_order(2, [10.0], [True], 1.1), _order(4, [10.0, 20.0], [True, True], 1.1)]
-    assert choose_order(unstable, (5.0, 50.0)) == 4
+             _order(6, [10.0, 20.0], [True, True], 1.2), _order(8, [10.0, 20.0], [True, True])]
+    # orders 4, 6 and 8 hold both modes; 8 is the lowest that can be simulated
+    assert choose_order(poles, (5.0, 50.0)) == 8
+    # no stable order holds both: the lowest that does (its unstable poles get reflected)
+    assert choose_order(poles[:3], (5.0, 50.0)) == 4
 
 
 def test_choose_order_drops_poles_that_carry_nothing():
