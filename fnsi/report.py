@@ -156,8 +156,8 @@ def _errors(result: IdentificationResult, settings: IdentificationSettings,
 def _simulation_warnings(result: IdentificationResult,
                          compared: dict[str, ModelErrors | dict[str, str]]) -> list[str]:
     """A warning per dataset the model could not be simulated on, unless the
-    identification's warnings already say why (an unstable linear part)."""
-    if result.warnings:
+    identification already warned that its linear part is unstable."""
+    if np.max(np.abs(np.linalg.eigvals(result.model.A)), initial=0.0) >= 1.0:
         return []
     return [f"the model could not be simulated on the {kind} data ({errors['failure']}): it "
             "has no simulation errors there and errors.png is absent"

@@ -368,9 +368,10 @@ class Study:
                                  discard_periods=settings.discard_periods,
                                  band_high=settings.band[1])
         except ValueError as error:
-            # the identification names the stable orders when the linear part is unstable
+            # the identification's warnings name the stable orders of an unstable model,
+            # or the poles the automatic order reflected
             return Evaluation(elements, result, None, None, None,
-                              failure="; ".join(result.warnings) or str(error))
+                              failure="; ".join((str(error), *result.warnings)))
         errors = comparison.errors
         validation = self.validation.select(inputs=result.model.input_names,
                                             outputs=result.model.output_names)
