@@ -408,13 +408,16 @@ def modal_contributions(A: np.ndarray, B: np.ndarray, C: np.ndarray, fs: float,
 
 def choose_order(poles: Sequence[OrderPoles], band: tuple[float, float],
                  contributions: Callable[[int], np.ndarray] | None = None,
-                 min_contribution: float = 1e-3) -> int | None:
+                 min_contribution: float = 1e-3,
+                 tolerances: StabilisationTolerances | None = None) -> int | None:
     """Automatic model order: the lowest simulable order holding the most physical poles.
 
     A pole of an order is physical when it is confirmed (``modes.confirmed``: fully stable
     at the next order and on a persistent column, see :func:`stabilisation_diagram`), its
     natural frequency lies inside ``band`` and, when ``contributions`` is given, it carries
-    at least ``min_contribution`` of the fitted response's power over the band. Among the
+    at least ``min_contribution`` of the fitted response's power over the band; with
+    ``tolerances``, two poles that are one mode split by the model count once
+    (:func:`distinct_poles`). Among the
     orders whose linear part can be simulated (:attr:`OrderPoles.simulable`), the rule
     takes the one with the most physical poles, the lowest on a tie: a structural mode the
     data hold appears at some order and stays, so the count reaches the number of such
@@ -438,6 +441,8 @@ def choose_order(poles: Sequence[OrderPoles], band: tuple[float, float],
     contributions : callable(order) -> ndarray, optional
         Share of each pole of that order (:func:`modal_contributions`); None counts
         confirmed poles only.
+    tolerances : StabilisationTolerances, optional
+        Frequency and MACX tolerances under which two poles of one order are one mode.
     min_contribution : float
         Smallest share of a physical pole [-] (default 0.1 %: ten times below the 1 % of
         the response a mode must carry to matter, and far above the shares of the poles
@@ -468,8 +473,13 @@ def choose_order(poles: Sequence[OrderPoles], band: tuple[float, float],
 
     def count(p: OrderPoles) -> int:
         if p.order not in counted:
-            counted[p.order] = bound(p) if contributions is None else int(np.sum(
-                physical_mask(p, band) & (contributions(p.order) >= min_contribution)))
+            keep = physical_mask(p, band)
+            shares = None if contributions is None else contributions(p.order)
+            if shares is not None:
+                keep &= shares >= min_contribution
+            if tolerances is not None:
+                keep = distinct_poles(p.modes, keep, shares, tolerances)
+            counted[p.order] = int(np.sum(keep))
         return counted[p.order]
 
     def best(pool: list[OrderPoles], floor: int = 1) -> tuple[int, int] | None:
@@ -532,18 +542,48 @@ def reflect_unstable_poles(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def physical_mask(poles: OrderPoles, band: tuple[float, float],
-                  min_contribution: float | None = None) -> np.ndarray:
+                  min_contribution: float | None = None,
+                  tolerances: StabilisationTolerances | None = None) -> np.ndarray:
     """Which poles of an order are physical (see :func:`choose_order`), shape (n_modes,).
 
     The contribution test applies when ``min_contribution`` is given and the order's
-    ``contributions`` were evaluated.
+    ``contributions`` were evaluated; with ``tolerances``, of two physical poles that are
+    one mode (:func:`distinct_poles`) only the one carrying more response is kept.
     """
     modes = poles.modes
     keep = np.zeros(modes.n_modes, bool) if modes.confirmed is None else modes.confirmed.copy()
     keep &= (modes.frequencies >= band[0]) & (modes.frequencies <= band[1])
     if min_contribution is not None and poles.contributions is not None:
         keep &= poles.contributions >= min_contribution
+    if tolerances is not None:
+        keep = distinct_poles(modes, keep, poles.contributions, tolerances)
     return keep
+
+
+def distinct_poles(modes: ModalTable, keep: np.ndarray, weights: np.ndarray | None,
+                   tolerances: StabilisationTolerances) -> np.ndarray:
+    """``keep`` without the poles that repeat a kept one, shape (n_modes,).
+
+    Two poles of one order are one mode when their frequencies differ by at most the
+    frequency tolerance and their shapes match (MACX at least the threshold): a model of
+    higher order can split a structural mode into two such poles, which would otherwise
+    count twice in the order choice and be reported twice. Poles are taken by decreasing
+    ``weights`` (their contributions; None: in order), and a pole is dropped when it
+    repeats one already taken. Close modes with different shapes stay apart.
+    """
+    order = np.flatnonzero(keep)
+    if weights is not None:
+        order = order[np.argsort(-weights[order], kind="stable")]
+    taken: list[int] = []
+    for k in order:
+        f = modes.frequencies[k]
+        near = [t for t in taken
+                if abs(modes.frequencies[t] - f) <= tolerances.frequency * modes.frequencies[t]]
+        if not near or np.max(macx_matrix(modes.shapes[k], modes.shapes[near])) < tolerances.macx:
+            taken.append(int(k))
+    out = np.zeros_like(keep)
+    out[taken] = True
+    return out
 
 
 def _stable_counts(poles: Sequence[OrderPoles], band: tuple[float, float]) -> np.ndarray:
@@ -625,7 +665,7 @@ class StabilisationDiagram:
     def physical(self, order: int) -> np.ndarray:
         """Which poles of an order are physical (:func:`choose_order`), shape (n_modes,):
         the modes the automatic order keeps."""
-        return physical_mask(self.at(order), self.band, self.min_contribution)
+        return physical_mask(self.at(order), self.band, self.min_contribution, self.tolerances)
 
     def simulable_orders(self) -> tuple[int, ...]:
         """Orders whose linear part is stable (every discrete pole inside the unit circle)."""
@@ -786,7 +826,7 @@ def stabilisation_diagram(
         return shares[order]
 
     auto_order = choose_order(poles, band, None if contributions is None else share,
-                              min_contribution)
+                              min_contribution, tolerances)
     poles = tuple(replace(p, contributions=shares.get(p.order)) for p in poles)
     return StabilisationDiagram(
         orders=chosen, poles=poles, band=band, tolerances=tolerances,

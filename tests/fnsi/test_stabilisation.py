@@ -15,6 +15,7 @@ from fnsi.stabilisation import (
     choose_order,
     column_lengths,
     confirmed_poles,
+    distinct_poles,
     macx_matrix,
     modal_contributions,
     stabilisation_diagram,
@@ -332,3 +333,20 @@ def test_real_decomposition_of_a_noisy_linear_system():
     found = d.at(4).modes.frequencies
     # noise 1e-4 of the response on 159 lines: frequencies agree far better than 0.1 %
     np.testing.assert_allclose(np.sort(found), truth, rtol=1e-3)
+
+
+def test_a_split_mode_counts_once_and_close_modes_with_other_shapes_stay():
+    shapes = np.array([[1.0, 0.5, 0.2], [1.0, 0.5, 0.2], [0.2, -1.0, 0.7]], dtype=complex)
+    # 20.0 and 20.1 Hz (0.5 % apart) with one shape: one mode split by the model; 20.05 Hz
+    # with an orthogonal-ish shape: a close mode of its own
+    modes = ModalTable(np.array([20.0, 20.1, 20.05]), np.full(3, 0.02), shapes,
+                       ("y0", "y1", "y2"), np.ones(3, bool))
+    keep = distinct_poles(modes, np.ones(3, bool), np.array([0.1, 0.5, 0.3]),
+                          StabilisationTolerances())
+    assert keep.tolist() == [False, True, True]   # the larger share of the pair stays
+    split = OrderPoles(6, modes, (PoleClass.STABLE,) * 3)
+    single = OrderPoles(4, modes.subset(np.array([True, False, True])),
+                        (PoleClass.STABLE,) * 2)
+    # the split adds no mode: the lower order holding both modes is chosen
+    assert choose_order([single, split], (5.0, 50.0),
+                        tolerances=StabilisationTolerances()) == 4
