@@ -131,6 +131,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     for name, content in report.artefacts.items():
         (folder / name).write_bytes(content)
+    for warning in report.document["warnings"]:
+        print(f"warning: {warning}")
     print(f"order {result.order}; artefacts in {folder}/")
     for mode in report.document["modes"]:
         print(f"  {mode['frequency_hz']:9.4f} Hz  damping {100 * mode['damping_ratio']:6.3f} %")

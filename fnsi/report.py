@@ -5,7 +5,10 @@ One function builds what the service's identification jobs store and what
 
 ``result.json``
     :meth:`IdentificationResult.to_json` plus the model's errors on the estimation (and
-    validation) data, NaN written as null (strict JSON).
+    validation) data, NaN written as null (strict JSON). Its top-level ``warnings`` list
+    says what makes the model unusable: the identification's (an unstable linear part)
+    and a model that could not be simulated on the estimation or validation data, whose
+    errors section then holds ``failure``, the reason, instead of errors.
 ``model.npz``
     :meth:`StateSpaceModel.to_npz`.
 ``frf.png``, ``stabilisation.png``, ``coefficients.png``, ``stiffness.png``, ``macx.png``
@@ -122,6 +125,7 @@ def identification_report(result: IdentificationResult, settings: Identification
         compared["validation"] = _errors(result, settings, validation)
     document["errors"] = {kind: errors.to_json() if isinstance(errors, ModelErrors) else errors
                           for kind, errors in compared.items()}
+    document["warnings"] = list(result.warnings) + _simulation_warnings(result, compared)
     document = strict_json(document)
     report(0.6, "drawing figures")
     artefacts = _figures(result, settings, estimation, truth)
@@ -147,6 +151,17 @@ def _errors(result: IdentificationResult, settings: IdentificationSettings,
                        band_high=settings.band[1]).errors
     except ValueError as err:  # e.g. an unstable model cannot be simulated
         return {"failure": str(err)}
+
+
+def _simulation_warnings(result: IdentificationResult,
+                         compared: dict[str, ModelErrors | dict[str, str]]) -> list[str]:
+    """A warning per dataset the model could not be simulated on, unless the
+    identification already warned that its linear part is unstable."""
+    if np.max(np.abs(np.linalg.eigvals(result.model.A)), initial=0.0) >= 1.0:
+        return []
+    return [f"the model could not be simulated on the {kind} data ({errors['failure']}): it "
+            "has no simulation errors there and errors.png is absent"
+            for kind, errors in compared.items() if not isinstance(errors, ModelErrors)]
 
 
 def _worst_outputs(errors: ModelErrors, count: int = 6) -> list[str]:

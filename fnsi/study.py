@@ -369,7 +369,10 @@ class Study:
                                  discard_periods=settings.discard_periods,
                                  band_high=settings.band[1])
         except ValueError as error:
-            return Evaluation(elements, result, None, None, None, failure=str(error))
+            # the identification's warnings name the stable orders of an unstable model,
+            # or the poles the automatic order reflected
+            return Evaluation(elements, result, None, None, None,
+                              failure="; ".join((str(error), *result.warnings)))
         errors = comparison.errors
         validation = self.validation.select(inputs=result.model.input_names,
                                             outputs=result.model.output_names)
@@ -485,7 +488,8 @@ class Study:
         return rows
 
     def history_table(self) -> str:
-        """The error history as a plain-text table (for the CLI)."""
+        """The error history as a plain-text table (for the CLI); a revision whose model
+        could not be simulated says why below its row."""
         lines = [f"{'rev':>3}  {'order':>5}  {'NRMSE %':>9}  {'floor %':>8}  change"]
         for row in self.history():
             e = row["nrmse_percent"]
@@ -493,6 +497,8 @@ class Study:
             lines.append(f"{row['number']:>3}  {row['order']:>5}  "
                          f"{'failed' if e is None else f'{e:9.3g}':>9}  "
                          f"{'-' if f is None else f'{f:8.3g}':>8}  {row['note']}")
+            if row["failure"]:
+                lines.append(f"{'':>3}  failed: {row['failure']}")
         return "\n".join(lines)
 
     def to_json(self, *, spectra: bool = False) -> dict:

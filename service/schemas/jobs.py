@@ -46,6 +46,10 @@ class Job(BaseModel):
         "the revision number and error history, for a study_diagnosis the ranked "
         "candidates, for an analysis the distortion levels and verdict.")
     error: str | None = Field(None, description="Why the job failed, and what to change.")
+    warnings: list[str] = Field(
+        [], description="The result's warnings: why a succeeded job's model cannot be used "
+        "as is (e.g. it cannot be simulated), and what to change; empty when all is well.",
+        examples=[[]])
 
     @classmethod
     def of(cls, record: JobRecord) -> Job:
@@ -55,7 +59,13 @@ class Job(BaseModel):
                    created_at=record.created_at, started_at=record.started_at,
                    finished_at=record.finished_at, attempts=record.attempts,
                    batch_id=record.batch_id, request=record.request, result=record.result,
-                   error=record.error)
+                   error=record.error, warnings=_warnings(record.result))
+
+
+def _warnings(result: Any) -> list[str]:
+    """The warnings a stored result carries (identification results have them)."""
+    found = result.get("warnings") if isinstance(result, dict) else None
+    return [str(w) for w in found] if isinstance(found, list) else []
 
 
 class JobPage(BaseModel):

@@ -42,8 +42,9 @@ class IdentifiedMode(_Document):
     damping_ratio: float = Field(description="Damping ratio [-].", examples=[0.012])
     shape: list[list[float]] = Field(description="Mode shape, one [re, im] pair per "
                                      "output (order of output_names).")
-    confirmed: bool | None = Field(description="Stable at the next orders of the "
-                                   "stabilisation diagram; null when none follows.")
+    confirmed: bool | None = Field(description="Stable at the next order of the "
+                                   "stabilisation diagram and over at least four successive "
+                                   "orders; null when none follows.")
 
 
 class IdentifiedCoefficient(_Document):
@@ -135,6 +136,16 @@ class IdentificationJobResult(_Document):
     """Result of an identification job: result.json without the model matrices,
     stabilisation diagram and singular values (download result.json or model.npz)."""
 
+    warnings: list[str] = Field(
+        [], description="What makes the model unusable, with what to change; empty when "
+        "all is well. A model whose linear part is unstable (an explicit order, or the "
+        "automatic one when no order of the diagram is stable) cannot be simulated: the "
+        "job still succeeds, since its modes and coefficients stand, but this list says so "
+        "and each entry of errors then holds failure instead of errors.",
+        examples=[["the linear part of the order-12 model is unstable (pole at 17.9 Hz, "
+                   "|z| = 1.000400 >= 1): the model cannot be simulated, so it has no "
+                   "simulation errors; orders of the stabilisation diagram whose linear part "
+                   "is stable: [2, 4, 6, 8, 10]"]])
     order: int = Field(description="Model order n.", examples=[10])
     modes: list[IdentifiedMode] = Field(description="Physical modes in the band.")
     output_names: list[str] = Field(description="Output channels, order of mode shapes.")

@@ -9,11 +9,15 @@ import pytest
 
 from fnsi.modal import ModalTable
 from fnsi.stabilisation import (
+    OrderPoles,
     PoleClass,
     StabilisationTolerances,
     choose_order,
+    column_lengths,
     confirmed_poles,
+    distinct_poles,
     macx_matrix,
+    modal_contributions,
     stabilisation_diagram,
 )
 
@@ -142,23 +146,76 @@ def test_classes_distinguish_damping_and_shape_changes():
     assert d.auto_order is None
 
 
-def test_choose_order_takes_the_lower_order_of_the_first_plateau():
-    # the paper's case: 8 modes fully stable at 20 (against 18) and beyond -> order 18
-    orders = list(range(2, 31, 2))
-    counts = [0, 1, 1, 2, 3, 4, 5, 6, 7, 8, 8, 8, 8, 9, 8]
-    assert choose_order(orders, counts, persistence=3) == 18
-    assert choose_order(orders, [0] * len(orders)) is None
-    with pytest.raises(ValueError, match="persistence"):
-        choose_order(orders, counts, persistence=0)
+def _order(order, frequencies, confirmed, radius=0.99):
+    f = np.asarray(frequencies, dtype=float)
+    table = ModalTable(f, np.full(f.size, 0.02), np.ones((f.size, 2)), ("y0", "y1"),
+                       np.asarray(confirmed, dtype=bool))
+    return OrderPoles(order, table, (PoleClass.STABLE,) * f.size, radius)
 
 
-def test_choose_order_skips_a_reference_without_confirmed_poles():
-    orders = list(range(2, 17, 2))
-    counts = [0, 1, 1, 1, 2, 2, 2, 2]
-    assert choose_order(orders, counts, persistence=2) == 2
-    # the poles of order 2 are matched at 4 but lost further up: next plateau
-    confirmed = [0, 0, 0, 1, 2, 2, 2, 0]
-    assert choose_order(orders, counts, persistence=2, confirmed_counts=confirmed) == 8
+def test_choose_order_takes_the_lowest_order_with_the_most_physical_poles():
+    poles = [_order(2, [10.0], [True]), _order(4, [10.0, 20.0], [True, True]),
+             _order(6, [10.0, 20.0, 33.0], [True, True, False]),
+             _order(8, [10.0, 20.0, 30.0], [True, True, True]),
+             _order(10, [10.0, 20.0, 30.0, 60.0], [True, True, True, True])]
+    # three confirmed poles in the band first at 8; the 60 Hz pole of 10 is out of band
+    assert choose_order(poles, (5.0, 50.0)) == 8
+    assert choose_order([_order(2, [10.0], [False]), _order(4, [10.0], [False])],
+                        (5.0, 50.0)) is None
+
+
+def test_choose_order_prefers_a_simulable_order():
+    poles = [_order(2, [10.0], [True]), _order(4, [10.0, 20.0], [True, True], 1.0004),
+             _order(6, [10.0, 20.0], [True, True], 1.2), _order(8, [10.0, 20.0], [True, True])]
+    # orders 4, 6 and 8 hold both modes; 8 is the lowest that can be simulated
+    assert choose_order(poles, (5.0, 50.0)) == 8
+    # no stable order holds both: the lowest that does (its unstable poles get reflected)
+    assert choose_order(poles[:3], (5.0, 50.0)) == 4
+
+
+def test_choose_order_drops_poles_that_carry_nothing():
+    poles = [_order(2, [10.0], [True]), _order(4, [10.0, 20.0], [True, True]),
+             _order(6, [10.0, 20.0, 33.0], [True, True, True])]
+    shares = {2: np.array([0.9]), 4: np.array([0.6, 0.4]), 6: np.array([0.6, 0.4, 1e-6])}
+    visited = []
+
+    def contributions(order):
+        visited.append(order)
+        return shares[order]
+
+    # the 33 Hz pole is persistent but explains 1e-6 of the response: order 4
+    assert choose_order(poles, (5.0, 50.0), contributions) == 4
+    assert visited == [6, 4]  # order 2 cannot hold more than one pole: not evaluated
+
+
+def test_columns_span_the_orders_of_fully_stable_chains():
+    tables = [_table([10.0, 20.0]), _table([10.01, 21.0]), _table([10.02, 21.01]),
+              _table([10.0])]
+    assert [s.tolist() for s in column_lengths(tables, StabilisationTolerances())] == [
+        [4, 1], [4, 2], [4, 2], [4]]
+
+
+def test_modal_contribution_of_two_modes_follows_their_residues():
+    from fnsi.modal import modal_table
+
+    rng = np.random.default_rng(1)
+    shapes = _complex_shapes(rng, 2, 3)
+    A, C = _realisation(np.array([12.0, 30.0]), np.array([0.02, 0.02]), shapes, rng)
+    B = rng.normal(size=(4, 1))
+    modes = modal_table(A, C, FS, ("a", "b", "c"))
+    lines = np.linspace(5.0, 60.0, 400)
+    shares = modal_contributions(A, B, C, FS, lines, modes)
+    lam, V = np.linalg.eig(A)
+    z = np.exp(2j * np.pi * lines / FS)
+    H = np.array([C @ np.linalg.solve(zk * np.eye(4) - A, B) for zk in z])
+    # the two pole pairs rebuild H exactly, so their shares add up to 1 minus twice the
+    # real cross power; each share is checked against the direct sum of its pair
+    residues = (C @ V)[:, :, None] * np.linalg.solve(V, B)[None]
+    for k, f in enumerate(modes.frequencies):
+        pair = np.argsort(np.abs(np.abs(np.log(lam) * FS) / (2 * np.pi) - f))[:2]
+        part = sum(residues[None, :, r] / (z[:, None, None] - lam[r]) for r in pair)
+        expected = np.sum(np.abs(part) ** 2) / np.sum(np.abs(H) ** 2)
+        assert shares[k] == pytest.approx(expected, rel=1e-9)  # same sums, rounding only
 
 
 def _table(frequencies, damping=0.02, channels=3):
@@ -276,3 +333,20 @@ def test_real_decomposition_of_a_noisy_linear_system():
     found = d.at(4).modes.frequencies
     # noise 1e-4 of the response on 159 lines: frequencies agree far better than 0.1 %
     np.testing.assert_allclose(np.sort(found), truth, rtol=1e-3)
+
+
+def test_a_split_mode_counts_once_and_close_modes_with_other_shapes_stay():
+    shapes = np.array([[1.0, 0.5, 0.2], [1.0, 0.5, 0.2], [0.2, -1.0, 0.7]], dtype=complex)
+    # 20.0 and 20.1 Hz (0.5 % apart) with one shape: one mode split by the model; 20.05 Hz
+    # with an orthogonal-ish shape: a close mode of its own
+    modes = ModalTable(np.array([20.0, 20.1, 20.05]), np.full(3, 0.02), shapes,
+                       ("y0", "y1", "y2"), np.ones(3, bool))
+    keep = distinct_poles(modes, np.ones(3, bool), np.array([0.1, 0.5, 0.3]),
+                          StabilisationTolerances())
+    assert keep.tolist() == [False, True, True]   # the larger share of the pair stays
+    split = OrderPoles(6, modes, (PoleClass.STABLE,) * 3)
+    single = OrderPoles(4, modes.subset(np.array([True, False, True])),
+                        (PoleClass.STABLE,) * 2)
+    # the split adds no mode: the lower order holding both modes is chosen
+    assert choose_order([single, split], (5.0, 50.0),
+                        tolerances=StabilisationTolerances()) == 4

@@ -163,3 +163,21 @@ def test_bad_inputs_say_what_to_change(data, tmp_path):
     with pytest.raises(ValueError, match="no revision yet"):
         Study(estimation, validation, SETTINGS).add_revision(order=8)
     assert math.isfinite(Study(estimation, validation, SETTINGS).noise_floor_percent)
+
+
+def test_history_table_says_why_a_revision_failed():
+    from fnsi.identification import IdentificationSettings
+    from fnsi.smallsat import simulate_preset
+
+    # the README's record and stop: order 14 has an unstable pole (|z| = 1.0018)
+    record, _ = simulate_preset("single", periods=3, samples_per_period=2500, seed=1)
+    stop = NonlinearElement.from_json(
+        {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5})
+    settings = IdentificationSettings(outputs=("NC2w_Z", "NC2b_Z", "W_Z"), band=(5.0, 50.0),
+                                      block_rows=20, max_order=20, order=14, elements=(stop,))
+    unstable = Study.create(record, record, settings)
+    failure = unstable.revisions[0].failure
+    assert "unstable" in failure and "stable: [" in failure   # names the stable orders
+    table = unstable.history_table().splitlines()
+    assert "failed" in table[1] and table[2].strip() == f"failed: {failure}"
+    assert unstable.history()[0]["failure"] == failure
