@@ -39,8 +39,9 @@ polynomial forces of degree p just above 2 p times it (the p-th harmonic of the 
 then below the internal Nyquist frequency); 1 when fs is already that high (the
 SmallSat tests at 2.5 kHz for a 50 Hz band) and for linear models.
 
-With both, the models of that chain validate within 0.9-1.5 times the floor (stop and
-friction, 8 seeds), against 2-8.6 times for the same models simulated at fs.
+With both, the models of that chain validate within 0.9-1.5 times the floor with the
+stop (8 seeds) and 1.2-2.1 times with friction between two masses (5 of 8 seeds below
+1.5), against 2-7.6 and 4.5-10 times for the same models simulated at fs.
 
 Refinement (:mod:`fnsi.refinement`) fits a model to the data through the simulation at
 fs, so a model to be refined is identified with its bases at fs and judged at fs
@@ -64,9 +65,11 @@ from fnsi.simulation import simulate_periodic
 from fnsi.statespace import StateSpaceModel
 
 #: Internal rate for non-smooth elements, as a multiple of the band edge. On the 4-DOF
-#: chain of the module docstring (noise-free estimation data, true element): the stop's
-#: validation error 4.3-7.6 times the floor at fs (5 times the band edge), 1.10-1.17 at 20
-#: times, 1.08-1.16 at 40; friction 4.7-6.3, 1.05-1.10, 1.09-1.15.
+#: chain of the module docstring (noise-free estimation data, true element, one seed):
+#: the stop's validation error 4.2-7.4 times the floor at fs (5 times the band edge),
+#: 1.05-1.21 at 20 times, 1.08-1.16 at 40, 1.02-1.09 at 80; friction to ground 4.7-6.3,
+#: 1.04-1.10, 1.09-1.15; friction between two masses (another seed) 1.43-1.61 at 20,
+#: 1.32-1.47 at 40 and 80.
 NON_SMOOTH_RATE = 20.0
 #: Most internal samples per measured sample (bounds the cost: simulation time grows
 #: with the factor).
