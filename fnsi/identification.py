@@ -42,6 +42,7 @@ import numpy as np
 from fnsi.measurement import Layout, Measurement
 from fnsi.modal import Coefficient, ModalTable, modal_table, nonlinear_coefficients
 from fnsi.nonlinear import NonlinearElement
+from fnsi.oversampling import oversampled_bases, oversampling_factor
 from fnsi.refinement import Refinement, refine
 from fnsi.separability import Separability, separability
 from fnsi.spectra import (
@@ -421,9 +422,10 @@ def check_settings(record: Measurement | Layout, settings: IdentificationSetting
 
 
 def _basis_series(elements: tuple[NonlinearElement, ...], data: Measurement,
-                  displacement: np.ndarray, velocity: np.ndarray | None,
+                  displacement: np.ndarray, velocity: np.ndarray | None, oversampling: int,
                   ) -> tuple[tuple[NonlinearElement, ...], np.ndarray, list[tuple[float, float]]]:
-    """Resolved elements, basis time series (R, samples, s) and measured ranges."""
+    """Resolved elements, basis time series (R, samples, s) and measured ranges; the
+    bases evaluated at ``oversampling`` times fs (:func:`fnsi.oversampling.oversampled_bases`)."""
     R, S, _ = displacement.shape
     resolved, series, ranges = [], [], []
     for element in elements:
@@ -434,9 +436,9 @@ def _basis_series(elements: tuple[NonlinearElement, ...], data: Measurement,
             if v is not None:
                 v = v - velocity[:, :, data.output_index(element.ref)]
         element = element.resolve(x.ravel())
-        g = element.basis(x.ravel(), None if v is None else v.ravel())
         resolved.append(element)
-        series.append(g.reshape(R, S, element.n_basis))
+        series.append(oversampled_bases((element,), x[:, :, None],
+                                        None if v is None else v[:, :, None], oversampling))
         w = v if element.needs_velocity else x
         ranges.append((float(w.min()), float(w.max())))
     if not series:
@@ -469,7 +471,11 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
         xb, vb = period_mean(x, periods), None if v is None else period_mean(v, periods)
     else:
         xb, vb = x, v
-    elements, g, ranges = _basis_series(settings.elements, data, xb, vb)
+    # a model to be refined is identified as refinement simulates it, one basis value per
+    # sample (the oversampled one may not simulate at fs: fnsi.oversampling)
+    oversampling = 1 if settings.refine else oversampling_factor(settings.elements, data.fs,
+                                                                 settings.band[1])
+    elements, g, ranges = _basis_series(settings.elements, data, xb, vb, oversampling)
     E = np.concatenate([u, g], axis=2)
     freq, spectrum = transform(E, periods, data.fs, settings.band, settings.line_set)
     _, Y = transform(x, periods, data.fs, settings.band, settings.line_set)
@@ -478,7 +484,7 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     if compensate:
         # the bases of each period, whose spread is the noise the average carries
         raw = E if not settings.average_bases else np.concatenate(
-            [u, _basis_series(elements, data, x, v)[1]], axis=2)
+            [u, _basis_series(elements, data, x, v, oversampling)[1]], axis=2)
         averaged = np.repeat([False, settings.average_bases, False],
                              [u.shape[2], g.shape[2], x.shape[2]])
         q = E.shape[2]

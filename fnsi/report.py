@@ -38,7 +38,7 @@ from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import output_spectra
 from fnsi.stabilisation import macx_matrix
-from fnsi.validation import compare
+from fnsi.validation import compare_identified
 
 Progress = Callable[[float, str], None]
 
@@ -119,10 +119,10 @@ def identification_report(result: IdentificationResult, settings: Identification
     report = progress or (lambda fraction, message: None)
     document = result.to_json()
     report(0.0, "simulating the model on the estimation data")
-    compared = {"estimation": _errors(result, settings, estimation)}
+    compared = {"estimation": _errors(result, estimation)}
     if validation is not None:
         report(0.3, "simulating the model on the validation data")
-        compared["validation"] = _errors(result, settings, validation)
+        compared["validation"] = _errors(result, validation)
     document["errors"] = {kind: errors.to_json() if isinstance(errors, ModelErrors) else errors
                           for kind, errors in compared.items()}
     document["warnings"] = list(result.warnings) + _simulation_warnings(result, compared)
@@ -143,12 +143,11 @@ def identification_report(result: IdentificationResult, settings: Identification
     return Report(document, artefacts)
 
 
-def _errors(result: IdentificationResult, settings: IdentificationSettings,
+def _errors(result: IdentificationResult,
             measurement: Measurement) -> ModelErrors | dict[str, str]:
     """The model's errors on a measurement, or why it could not be simulated."""
     try:
-        return compare(result.model, measurement, discard_periods=settings.discard_periods,
-                       band_high=settings.band[1]).errors
+        return compare_identified(result, measurement).errors
     except ValueError as err:  # e.g. an unstable model cannot be simulated
         return {"failure": str(err)}
 

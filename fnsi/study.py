@@ -39,7 +39,7 @@ from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve
-from fnsi.validation import compare
+from fnsi.validation import compare_identified
 
 if TYPE_CHECKING:
     from fnsi.diagnosis import Diagnosis, DiagnosisSettings
@@ -365,9 +365,7 @@ class Study:
                           lambda f, m: report(0.9 * f, m))
         report(0.9, "simulating the validation input")
         try:
-            comparison = compare(result.model, self.validation,
-                                 discard_periods=settings.discard_periods,
-                                 band_high=settings.band[1])
+            comparison = compare_identified(result, self.validation)
         except ValueError as error:
             # the identification's warnings name the stable orders of an unstable model,
             # or the poles the automatic order reflected

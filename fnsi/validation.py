@@ -1,8 +1,9 @@
 """Model versus measurement: run an identified model with the measured input.
 
 docs/design.md section 3, step 7. The identified nonlinear state-space model is driven to
-periodic steady state by one period of each realisation's measured input
-(:func:`fnsi.simulation.simulate_periodic`); FNSI models predict displacement, so the
+periodic steady state by one period of each realisation's measured input, at a finer
+internal rate when its elements are non-smooth and fs is low (:func:`fnsi.oversampling.
+simulate_oversampled`); FNSI models predict displacement, so the
 prediction is differentiated exactly (periodic data) into the measured quantity and
 compared with the kept periods of the measurement (:func:`fnsi.errors.model_errors`),
 per channel and per line, against the noise floor.
@@ -11,14 +12,18 @@ per channel and per line, against the noise floor.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fnsi.errors import ModelErrors, model_errors
 from fnsi.measurement import Measurement
-from fnsi.simulation import simulate_periodic
+from fnsi.oversampling import simulate_oversampled
 from fnsi.spectra import INTEGRATIONS, integrate_periodic, kept_record
 from fnsi.statespace import StateSpaceModel
+
+if TYPE_CHECKING:
+    from fnsi.identification import IdentificationResult
 
 #: The error spectra reach this multiple of the band's upper edge, so that harmonics
 #: created by an unmodelled nonlinearity show up above the identification band.
@@ -43,7 +48,7 @@ class Comparison:
 
 
 def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
-            band_high: float) -> Comparison:
+            band_high: float, oversampling: int | None = None) -> Comparison:
     """Simulate ``model`` with the input of ``measurement`` and compare the outputs.
 
     Parameters
@@ -57,6 +62,10 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     band_high : float
         Upper edge of the identification band [Hz]; the error spectra reach
         ``ERROR_BAND_FACTOR`` times it (at most fs / 2).
+    oversampling : int, optional
+        Internal samples per sample of the simulation; default the model's
+        :func:`fnsi.oversampling.oversampling_factor`. Give 1 for a refined model, which
+        was fitted through the simulation at fs.
 
     Returns
     -------
@@ -71,9 +80,30 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     data = measurement.select(inputs=model.input_names, outputs=model.output_names)
     measured = kept_record(data.y, data.periods, discard_periods)
     u = data.u[:, -data.period_length:]
-    periods = np.stack([simulate_periodic(model, u[r]).y for r in range(data.n_realisations)])
+    periods = simulate_oversampled(model, u, band_high, oversampling)
     simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
     high = min(data.fs / 2, ERROR_BAND_FACTOR * band_high)
     errors = model_errors(measured, simulated, data.fs, periods=data.periods - discard_periods,
                           output_names=data.output_names, band=(0.0, high))
     return Comparison(simulated, errors)
+
+
+def compare_identified(result: IdentificationResult, measurement: Measurement) -> Comparison:
+    """:func:`compare` for an identification: its transient periods and band, and a
+    refined model simulated at fs, the simulation refinement fitted it through
+    (:mod:`fnsi.oversampling`).
+
+    Parameters
+    ----------
+    result : IdentificationResult
+        The identification whose model is compared.
+    measurement : Measurement
+        Estimation or validation data.
+
+    Returns
+    -------
+    Comparison
+    """
+    refined = result.refinement is not None and result.refinement.iterations > 0
+    return compare(result.model, measurement, discard_periods=result.settings.discard_periods,
+                   band_high=result.settings.band[1], oversampling=1 if refined else None)
