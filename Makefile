@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: run worker test lint bench bench-paper clean
+.PHONY: run worker test lint bench bench-paper bench-determinism clean
 
 ## run: create the virtual environment, install, serve http://127.0.0.1:8000 (embedded jobs)
 run: $(VENV)/.installed
@@ -27,6 +27,11 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/newmark.py
 	$(BIN)/python benchmarks/refinement.py
 
+## bench-determinism: spread of the headline numbers over BLAS kernels and threads
+## against their spread over noise realisations (benchmarks/results/determinism.md)
+bench-determinism: $(VENV)/.installed-dev
+	$(BIN)/python benchmarks/determinism.py
+
 ## bench-paper: reproduce the paper's Section IV and write benchmarks/results/paper.md
 bench-paper: $(VENV)/.installed-dev
 	$(BIN)/python benchmarks/paper.py
@@ -38,12 +43,13 @@ $(VENV)/.python-ok:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	touch $@
 
-$(VENV)/.installed: $(VENV)/.python-ok pyproject.toml
-	$(BIN)/python -m pip install --quiet -e .
+# constraints.txt pins every version, so both commands install what the tests passed with
+$(VENV)/.installed: $(VENV)/.python-ok pyproject.toml constraints.txt
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e .
 	touch $@
 
-$(VENV)/.installed-dev: $(VENV)/.python-ok pyproject.toml
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+$(VENV)/.installed-dev: $(VENV)/.python-ok pyproject.toml constraints.txt
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
 	touch $@ $(VENV)/.installed
 
 clean:
