@@ -58,6 +58,23 @@ def panel_grid(count: int, columns: int = 2) -> tuple[int, int]:
     return -(-count // columns), columns
 
 
+def output_panels(names: Sequence[str], valid: Sequence[str], width: float,
+                  height: float) -> tuple[Figure, np.ndarray]:
+    """A figure with one ``width`` x ``height`` inch panel per output in ``names``.
+
+    Raises
+    ------
+    ValueError
+        ``names`` is empty or names a channel not in ``valid``.
+    """
+    unknown = [name for name in names if name not in valid]
+    if unknown or not names:
+        raise ValueError(f"unknown or no outputs {unknown}; choose among {list(valid)}")
+    rows, columns = panel_grid(len(names))
+    figure = new_figure(width * columns, height * rows)
+    return figure, np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
+
+
 def plot_stabilisation(
     diagram: StabilisationDiagram,
     *,
@@ -425,13 +442,7 @@ def plot_errors(errors: ModelErrors, *, outputs: Sequence[str] | None = None,
         PNG content.
     """
     names = list(errors.output_names[:6] if outputs is None else outputs)
-    unknown = [name for name in names if name not in errors.output_names]
-    if unknown or not names:
-        raise ValueError(f"unknown or no outputs {unknown}; choose among "
-                         f"{list(errors.output_names)}")
-    rows, columns = panel_grid(len(names))
-    figure = new_figure(5.0 * columns, 3.5 * rows)
-    axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
+    figure, axes = output_panels(names, errors.output_names, 5.0, 3.5)
     for ax, name in zip(axes, names, strict=False):
         k = errors.output_names.index(name)
         ax.semilogy(errors.frequencies, errors.measured_spectrum[:, k], color="k", lw=0.8,
@@ -481,13 +492,7 @@ def plot_distortion(analysis: DistortionAnalysis, *, outputs: Sequence[str] | No
         PNG content.
     """
     names = list(outputs) if outputs is not None else _strongest_outputs(analysis, 6)
-    unknown = [n for n in names if n not in analysis.output_names]
-    if unknown or not names:
-        raise ValueError(f"unknown or no outputs {unknown}; choose among "
-                         f"{list(analysis.output_names)}")
-    rows, columns = panel_grid(len(names))
-    figure = new_figure(5.5 * columns, 3.6 * rows)
-    axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
+    figure, axes = output_panels(names, analysis.output_names, 5.5, 3.6)
     f = analysis.frequencies
     excited = analysis.excited.all(axis=0)
     quiet = ~analysis.excited.any(axis=0)

@@ -8,7 +8,7 @@ import subprocess
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-# A path into a folder beside the repository (../shared/..., ../notes.md), or design
+# A path into a folder beside the repository (../notes/..., ../notes.md), or design
 # notes other than docs/design.md. An attack string such as ``../x`` cites nothing.
 OUTSIDE = re.compile(r"\.\./[\w.-]+/|\.\./[\w-]+\.md|(?<![\w/])DESIGN\.md")
 

@@ -4,6 +4,7 @@ format's own library (numpy, csv, scipy.io, h5py, pyuff)."""
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,6 +50,17 @@ def write_npz(rec: Record, path: Path, *, with_periods: bool = True) -> Path:
              input_names=np.array(rec.input_names), output_names=np.array(rec.output_names),
              quantity=np.str_("displacement"), **extra)
     return path
+
+
+def npz_bytes(rec: Record, **changes) -> bytes:
+    """The record's canonical NPZ as bytes, with arrays replaced (None removes one)."""
+    arrays = {"u": rec.u, "y": rec.y, "fs": np.float64(rec.fs),
+              "input_names": np.array(rec.input_names),
+              "output_names": np.array(rec.output_names), "periods": np.int64(rec.periods)}
+    arrays.update(changes)
+    buffer = io.BytesIO()
+    np.savez(buffer, **{k: v for k, v in arrays.items() if v is not None})
+    return buffer.getvalue()
 
 
 def write_csv(rec: Record, path: Path) -> Path:

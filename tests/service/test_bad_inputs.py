@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import copy
 import hashlib
-import io
 import json
 import sqlite3
 import tempfile
@@ -57,13 +56,7 @@ class Bad:
 
 def npz(**changes) -> bytes:
     """The record's canonical NPZ with arrays replaced (None removes one)."""
-    arrays = {"u": REC.u, "y": REC.y, "fs": np.float64(REC.fs),
-              "input_names": np.array(REC.input_names),
-              "output_names": np.array(REC.output_names), "periods": np.int64(REC.periods)}
-    arrays.update(changes)
-    buffer = io.BytesIO()
-    np.savez(buffer, **{k: v for k, v in arrays.items() if v is not None})
-    return buffer.getvalue()
+    return formats.npz_bytes(REC, **changes)
 
 
 def corrupted(data: bytes) -> bytes:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import http.client
-import io
 import json
 import time
 from collections.abc import Callable, Iterator
@@ -21,7 +20,6 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import httpx
-import numpy as np
 import pytest
 
 from tests.service import formats
@@ -114,13 +112,7 @@ class Seeded:
 
 def npz_bytes(**changes: Any) -> bytes:
     """The record's canonical NPZ with arrays replaced (None removes one)."""
-    arrays = {"u": REC.u, "y": REC.y, "fs": np.float64(REC.fs),
-              "input_names": np.array(REC.input_names),
-              "output_names": np.array(REC.output_names), "periods": np.int64(REC.periods)}
-    arrays.update(changes)
-    buffer = io.BytesIO()
-    np.savez(buffer, **{k: v for k, v in arrays.items() if v is not None})
-    return buffer.getvalue()
+    return formats.npz_bytes(REC, **changes)
 
 
 def settle(stack: Stack, timeout: float = 240) -> None:
