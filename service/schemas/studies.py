@@ -272,6 +272,10 @@ class Study(BaseModel):
         examples=["/v1/jobs/job_7d0c5e1f2a3b4c5d6e7f/artefacts/history.png"])
     diagnoses: list[StudyDiagnosis] = Field(description="Diagnoses requested, in order.")
     jobs: list[StudyJob] = Field(description="Every job of the study, oldest first.")
+    report: str | None = Field(
+        None, description="Path of the study's one-page HTML report (figures embedded); "
+        "null before revision 0.", examples=["/v1/studies/study_0a1b2c3d4e5f60718293/"
+                                             "report.html"])
 
 
 class StudySummary(BaseModel):
