@@ -20,6 +20,8 @@ One function builds what the service's identification jobs store and what
     Where the model fails: measured spectrum, model error and noise floor per line for
     the six outputs with the most error energy, on the validation data when given (else
     the estimation data); absent when the model cannot be simulated.
+``modes.uff``, ``result.mat``
+    The modes as UFF 55 and the result as a MAT file (:func:`fnsi.export.export_files`).
 ``report.html``
     One self-contained page with the tables and every figure above
     (:func:`fnsi.html_report.identification_page`).
@@ -41,6 +43,7 @@ import numpy as np
 from fnsi import plots
 from fnsi.distortion import DistortionAnalysis
 from fnsi.errors import ModelErrors
+from fnsi.export import export_files
 from fnsi.html_report import REPORT_NAME, analysis_page, identification_page
 from fnsi.identification import IdentificationResult, IdentificationSettings
 from fnsi.measurement import Measurement
@@ -145,6 +148,7 @@ def identification_report(result: IdentificationResult, settings: Identification
             errors, outputs=_worst_outputs(errors), unit="output unit",
             title=f"Model error on the {kind} data against the noise floor")
     artefacts[REPORT_NAME] = identification_page(document, artefacts)
+    artefacts |= export_files(document)
     artefacts["result.json"] = json.dumps(document).encode()
     buffer = io.BytesIO()
     result.model.to_npz(buffer)
