@@ -376,11 +376,14 @@ def _cmd_study_diagnose(args: argparse.Namespace) -> int:
     files |= {f"{prefix}-{name}": png for name, png in diagnosis_figures(diagnosis).items()}
     print(diagnosis.summary)
     for rank, candidate in enumerate(diagnosis.candidates, start=1):
-        print(f"{rank}. {candidate.effect.value}: validation NRMSE "
-              f"{candidate.validation_nrmse_percent:.3g} % "
-              f"(x{candidate.error_reduction_factor:.3g} better)"
-              f"{'' if candidate.beats_noise_floor else ', within the noise'}"
-              f"{'' if candidate.concern is None else ', physically implausible'}")
+        if candidate.failure is not None:
+            print(f"{rank}. {candidate.effect.value}: failed: {candidate.failure}")
+        else:
+            print(f"{rank}. {candidate.effect.value}: validation NRMSE "
+                  f"{candidate.validation_nrmse_percent:.3g} % "
+                  f"(x{candidate.error_reduction_factor:.3g} better)"
+                  f"{'' if candidate.beats_noise_floor else ', within the noise'}"
+                  f"{'' if candidate.concern is None else ', physically implausible'}")
         print(f"   {candidate.explanation}")
         if candidate.element is not None:
             print(f"   --add '{json.dumps(candidate.element.to_json())}'")

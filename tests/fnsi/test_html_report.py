@@ -23,6 +23,7 @@ from fnsi.cli import main
 from tests.chromium import CHROMIUM, MISSING, render
 from tests.fnsi.test_cli import EFFORT, HIDDEN, IDENTIFICATION
 from tests.fnsi.test_diagnosis import chain, measure
+from tests.fnsi.test_study_plots import failed_share
 
 # An order far above what 5 DOFs support, whose extra poles make the model unstable.
 UNSTABLE = ["--order", "40"]
@@ -91,6 +92,7 @@ def test_the_study_report_shows_revisions_diagnoses_and_failures(folders, capsys
     assert "Diagnosis of revision 0" in page and diagnosis["summary"] in page
     assert escape(f"the model could not be simulated: {failed['failure']}") in page
     assert "<td class=\"text\">failed</td>" in page  # the history row of the failed one
+    assert failed_share((folder / "history.png").read_bytes()) > 0.005  # drawn as failed
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason=MISSING)
