@@ -111,7 +111,9 @@ def _inspect(url: str, page: Path) -> Rendering:
         session = _Session(socket)
         for domain in ("Page", "Runtime", "Log"):
             session.call(f"{domain}.enable")
-        session.call("Page.navigate", url=page.resolve().as_uri())
+        navigation = session.call("Page.navigate", url=page.resolve().as_uri())
+        if "errorText" in navigation:   # the page itself did not load: no page to inspect
+            raise RuntimeError(f"Chromium could not load {page}: {navigation['errorText']}")
         session.wait_for("Page.loadEventFired")
         images = session.call("Runtime.evaluate", returnByValue=True, expression=(
             "Array.from(document.images).map(i => ({alt: i.alt, complete: i.complete, "
