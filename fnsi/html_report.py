@@ -144,12 +144,16 @@ def _errors_section(heading: str, errors: Mapping[str, Any]) -> Section:
     if "failure" in errors:
         return Section(heading, warnings=[f"the model could not be simulated: "
                                           f"{errors['failure']}"])
-    table = Table(["output", "NRMSE [%]", "noise floor [%]"],
-                  [[c["output"], c["nrmse_percent"], c["noise_floor_percent"]]
-                   for c in errors["channels"]])
     overall = (f"Overall NRMSE {cell_text(errors['overall_nrmse_percent'])} % against a "
                f"noise floor of {cell_text(errors['overall_noise_floor_percent'])} %.")
-    return Section(heading, paragraphs=[overall], tables=[table])
+    return Section(heading, paragraphs=[overall], tables=[_errors_table(errors)])
+
+
+def _errors_table(errors: Mapping[str, Any]) -> Table:
+    """NRMSE and noise floor per output (:meth:`fnsi.errors.ModelErrors.to_json`)."""
+    return Table(["output", "NRMSE [%]", "noise floor [%]"],
+                 [[c["output"], c["nrmse_percent"], c["noise_floor_percent"]]
+                  for c in errors["channels"]])
 
 
 # -- distortion analysis -------------------------------------------------------------------
@@ -233,7 +237,7 @@ def _revision_section(revision: Mapping[str, Any], figures: Mapping[str, bytes])
                           for c in revision["coefficients"]])
     tables = [modes] + ([coefficients] if revision["coefficients"] else [])
     if revision["validation"] is not None:
-        tables.append(_errors_section("", revision["validation"]).tables[0])
+        tables.append(_errors_table(revision["validation"]))
     failure = [f"the model could not be simulated: {revision['failure']}"] \
         if revision["failure"] else []
     concerns = [s["concern"] for s in revision.get("separability", []) if s.get("concern")]
