@@ -28,6 +28,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from fnsi.html_report import REPORT_NAME
+
 
 def _progress(fraction: float, message: str) -> None:
     print(f"\r[{fraction:6.1%}] {message:<60.60}", end="", file=sys.stderr, flush=True)
@@ -127,10 +129,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     result = identify(measurement, settings, progress=_progress)
     report = identification_report(result, settings, measurement, progress=_progress)
     print(file=sys.stderr)
+    _write_files(Path(args.output), report.artefacts)
     folder = Path(args.output)
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, content in report.artefacts.items():
-        (folder / name).write_bytes(content)
     for warning in report.document["warnings"]:
         print(f"warning: {warning}")
     print(f"order {result.order}; artefacts in {folder}/")
@@ -175,7 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     info.set_defaults(run=_cmd_info)
 
     ident = commands.add_parser(
-        "identify", help="identify a dataset with FNSI and write result.json, model.npz, PNGs"
+        "identify", help="identify a dataset with FNSI and write result.json, model.npz, PNGs "
+        "and report.html"
     )
     ident.add_argument("dataset", help="dataset file (npz, csv, mat, h5, uff)")
     ident.add_argument("-o", "--output", required=True, help="folder for the artefacts")
@@ -185,9 +186,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     analyse = commands.add_parser(
         "analyse", help="nonlinear distortion levels before any model (BLA, noise, odd and "
-        "even distortions): prints a verdict, writes analysis.json and distortion.png")
+        "even distortions): prints a verdict, writes analysis.json, distortion.png and "
+        "report.html")
     analyse.add_argument("dataset", help="dataset file (npz, csv, mat, h5, uff)")
-    analyse.add_argument("-o", "--output", help="folder for analysis.json and distortion.png")
+    analyse.add_argument("-o", "--output", help="folder for analysis.json, distortion.png and "
+                         "report.html")
     analyse.add_argument("--inputs", help="comma-separated input channels (a CSV needs them)")
     analyse.add_argument("--outputs", help="comma-separated output channels (default all)")
     analyse.add_argument("--discard-periods", type=int, default=1,
@@ -201,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_analyse(args: argparse.Namespace) -> int:
     from fnsi.distortion import analyse_distortion
-    from fnsi.plots import plot_distortion
+    from fnsi.report import analysis_artefacts
 
     measurement = _read(args.dataset, args)
     if args.outputs:
@@ -215,12 +218,16 @@ def _cmd_analyse(args: argparse.Namespace) -> int:
         print(f"{channel.name:<14} " + " ".join(f"{c:>9}" for c in cells))
     print(analysis.verdict)
     if args.output:
-        folder = Path(args.output)
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "analysis.json").write_text(json.dumps(analysis.to_json(), indent=2))
-        (folder / "distortion.png").write_bytes(plot_distortion(analysis, unit="output unit"))
-        print(f"wrote {folder / 'analysis.json'} and {folder / 'distortion.png'}")
+        _write_files(Path(args.output), analysis_artefacts(analysis))
     return 0
+
+
+def _write_files(folder: Path, files: dict[str, bytes]) -> None:
+    """Write ``files`` (name to content) into ``folder`` and list them."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, content in files.items():
+        (folder / name).write_bytes(content)
+    print(f"wrote in {folder}/: {', '.join(files)}")
 
 
 def _group_cell(group) -> str:
@@ -273,7 +280,7 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
 def _save_study(study, folder: Path, figures: dict[str, bytes]) -> None:
     """Save ``study`` to ``folder`` with its new figures, replacing the folder only once
     the new one is complete (a failure leaves the previous study intact); figures and
-    diagnoses of earlier revisions are kept."""
+    diagnoses of earlier revisions are kept. The report (``report.html``) is redrawn."""
     import shutil
 
     folder = folder.resolve()
@@ -289,8 +296,23 @@ def _save_study(study, folder: Path, figures: dict[str, bytes]) -> None:
         folder.rename(previous)
     partial.rename(folder)
     shutil.rmtree(previous, ignore_errors=True)
-    for name, content in figures.items():
-        (folder / name).write_bytes(content)
+    _write_files(folder, figures)
+    _write_files(folder, {REPORT_NAME: _study_report(folder)})
+
+
+def _study_report(folder: Path) -> bytes:
+    """The one-page report of the study saved in ``folder``, with its figures and every
+    diagnosis written there (``diagnosis-<n>.json`` and ``diagnosis-<n>-*.png``)."""
+    from fnsi.html_report import DiagnosisPart, study_page
+
+    figures = {p.name: p.read_bytes() for p in sorted(folder.glob("*.png"))
+               if not p.name.startswith("diagnosis-")}
+    diagnoses = []
+    for path in sorted(folder.glob("diagnosis-*.json"), key=lambda p: int(p.stem.split("-")[1])):
+        prefix = f"{path.stem}-"
+        diagnoses.append(DiagnosisPart(json.loads(path.read_text()), {
+            p.name.removeprefix(prefix): p.read_bytes() for p in folder.glob(f"{prefix}*.png")}))
+    return study_page(json.loads((folder / "study.json").read_text()), figures, diagnoses)
 
 
 def _cmd_study_create(args: argparse.Namespace) -> int:
@@ -350,19 +372,25 @@ def _cmd_study_diagnose(args: argparse.Namespace) -> int:
     diagnosis = study.diagnose(number, settings, progress=_progress)
     print(file=sys.stderr)
     prefix = f"diagnosis-{diagnosis.revision}"
-    (folder / f"{prefix}.json").write_text(json.dumps(diagnosis.to_json(), indent=1))
-    for name, content in diagnosis_figures(diagnosis).items():
-        (folder / f"{prefix}-{name}").write_bytes(content)
+    files = {f"{prefix}.json": json.dumps(diagnosis.to_json(), indent=1).encode()}
+    files |= {f"{prefix}-{name}": png for name, png in diagnosis_figures(diagnosis).items()}
     print(diagnosis.summary)
     for rank, candidate in enumerate(diagnosis.candidates, start=1):
-        print(f"{rank}. {candidate.effect.value}: validation NRMSE "
-              f"{candidate.validation_nrmse_percent:.3g} % "
-              f"(x{candidate.error_reduction_factor:.3g} better)"
-              f"{'' if candidate.beats_noise_floor else ', within the noise'}"
-              f"{'' if candidate.concern is None else ', physically implausible'}")
+        if candidate.failure is not None:
+            print(f"{rank}. {candidate.effect.value}: failed: {candidate.failure}")
+        else:
+            print(f"{rank}. {candidate.effect.value}: validation NRMSE "
+                  f"{candidate.validation_nrmse_percent:.3g} % "
+                  f"(x{candidate.error_reduction_factor:.3g} better)"
+                  f"{'' if candidate.beats_noise_floor else ', within the noise'}"
+                  f"{'' if candidate.concern is None else ', physically implausible'}")
         print(f"   {candidate.explanation}")
         if candidate.element is not None:
             print(f"   --add '{json.dumps(candidate.element.to_json())}'")
+    for note in diagnosis.notes:
+        print(f"note: {note}")
+    _write_files(folder, files)
+    _write_files(folder, {REPORT_NAME: _study_report(folder)})
     best = diagnosis.candidates[0] if diagnosis.candidates else None
     if args.apply and best is not None and best.element is not None and diagnosis.found:
         revision = study.add_revision(add=[best.element], note=best.effect.value,

@@ -75,6 +75,16 @@ def output_panels(names: Sequence[str], valid: Sequence[str], width: float,
     return figure, np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
 
 
+def confirmed_points(diagram: StabilisationDiagram) -> np.ndarray:
+    """(frequency [Hz], order) of every pole in the band that the following orders
+    confirm (``modes.confirmed``, :func:`fnsi.stabilisation.confirmed_poles`), shape (k, 2)."""
+    low, high = diagram.band
+    points = [(f, p.order) for p in diagram.poles if p.modes.confirmed is not None
+              for f, c in zip(p.modes.frequencies, p.modes.confirmed, strict=True)
+              if c and low <= f <= high]
+    return np.array(points, dtype=float).reshape(-1, 2)
+
+
 def plot_stabilisation(
     diagram: StabilisationDiagram,
     *,
@@ -85,8 +95,11 @@ def plot_stabilisation(
 ) -> bytes:
     """Stabilisation diagram: poles over frequency and model order (paper Figure 5).
 
-    Symbols as in the paper: dot new pole, cross stable in frequency, square + damping,
-    circle + MACX, triangle fully stable. The chosen order is marked by a line.
+    Symbols as in the paper, each pole against the order below: dot new pole, cross
+    stable in frequency, square + damping, circle + MACX, triangle fully stable. A black
+    ring marks the poles the orders above confirm (:func:`confirmed_points`, the
+    result's ``confirmed``): at the chosen order a mode can be new against the order
+    below and confirmed by the orders above. The chosen order is marked by a line.
 
     Parameters
     ----------
@@ -135,6 +148,10 @@ def plot_stabilisation(
             else:
                 style = {"color": colour}
             ax.scatter(f, n, marker=marker, s=size, linewidths=1.0, label=label, **style)
+    confirmed = confirmed_points(diagram)
+    if confirmed.size:
+        ax.scatter(*confirmed.T, marker="o", s=110, facecolors="none", edgecolors="k",
+                   linewidths=0.8, label="confirmed (by the orders above)")
     chosen = diagram.auto_order if order is None else order
     if chosen is not None:
         ax.axhline(chosen, color="k", lw=0.8, ls="--", label=f"chosen order {chosen}")
@@ -144,8 +161,10 @@ def plot_stabilisation(
     ax.set_ylabel("Model order n")
     ax.grid(True, alpha=0.3)
     if ax.get_legend_handles_labels()[0]:   # below the axes: poles fill the whole plane
-        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncols=6,
-                  fontsize="small", frameon=False)
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncols=4,
+                  fontsize="small", frameon=False, title_fontsize="small",
+                  title="symbols: each pole against the order below; ring: the result's "
+                        "confirmed, stable over the orders above")
     ax.set_title(title)
     if ax_sv is not None:
         sv = np.asarray(singular_values, dtype=float)

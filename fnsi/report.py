@@ -1,4 +1,5 @@
-"""The artefacts of an identification: result document, model file and figures.
+"""The artefacts of an identification (result document, model file, figures, report)
+and of a distortion analysis.
 
 One function builds what the service's identification jobs store and what
 ``fnsi identify`` writes to a folder, so both give the same files:
@@ -19,6 +20,14 @@ One function builds what the service's identification jobs store and what
     Where the model fails: measured spectrum, model error and noise floor per line for
     the six outputs with the most error energy, on the validation data when given (else
     the estimation data); absent when the model cannot be simulated.
+``modes.uff``, ``result.mat``
+    The modes as UFF 55 and the result as a MAT file (:func:`fnsi.export.export_files`).
+``report.html``
+    One self-contained page with the tables and every figure above
+    (:func:`fnsi.html_report.identification_page`).
+
+Likewise :func:`analysis_artefacts` for a distortion analysis (``fnsi analyse`` and the
+service's analysis jobs): ``analysis.json``, ``distortion.png`` and ``report.html``.
 """
 
 from __future__ import annotations
@@ -32,7 +41,10 @@ from typing import Any
 import numpy as np
 
 from fnsi import plots
+from fnsi.distortion import DistortionAnalysis
 from fnsi.errors import ModelErrors
+from fnsi.export import export_files
+from fnsi.html_report import REPORT_NAME, analysis_page, identification_page
 from fnsi.identification import IdentificationResult, IdentificationSettings
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
@@ -135,12 +147,23 @@ def identification_report(result: IdentificationResult, settings: Identification
         artefacts["errors.png"] = plots.plot_errors(
             errors, outputs=_worst_outputs(errors), unit="output unit",
             title=f"Model error on the {kind} data against the noise floor")
+    artefacts[REPORT_NAME] = identification_page(document, artefacts)
+    artefacts |= export_files(document)
     artefacts["result.json"] = json.dumps(document).encode()
     buffer = io.BytesIO()
     result.model.to_npz(buffer)
     artefacts["model.npz"] = buffer.getvalue()
     report(1.0, "report written")
     return Report(document, artefacts)
+
+
+def analysis_artefacts(analysis: DistortionAnalysis) -> dict[str, bytes]:
+    """File name to content of a distortion analysis: ``analysis.json``
+    (:meth:`DistortionAnalysis.to_json`), ``distortion.png`` and ``report.html``."""
+    document = analysis.to_json()
+    figures = {"distortion.png": plots.plot_distortion(analysis, unit="output unit")}
+    return {"analysis.json": json.dumps(document, indent=2).encode(), **figures,
+            REPORT_NAME: analysis_page(document, figures)}
 
 
 def _errors(result: IdentificationResult,

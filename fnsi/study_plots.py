@@ -18,6 +18,35 @@ from fnsi.plots import new_figure, panel_grid, png_bytes
 from fnsi.study import Revision, Study
 
 MAX_PANELS = 6
+# A model that could not be simulated: a hatched bar up to the top of the chart, so a
+# failure is seen at a glance and never mistaken for a missing bar.
+FAILED_STYLE = {"facecolor": "#fbe3e3", "edgecolor": "#b2182b", "hatch": "//"}
+
+
+def _failed_bars(ax, positions: Sequence[float], values: Sequence[float], reference: float,
+                 *, horizontal: bool = False) -> None:
+    """Draw the entries of ``values`` that are not finite as failed: a hatched bar of
+    length ``reference`` labelled "failed"."""
+    failed = [x for x, v in zip(positions, values, strict=True) if not np.isfinite(v)]
+    if not failed:
+        return
+    label = "failed: could not be simulated"
+    if horizontal:
+        ax.barh(failed, reference, label=label, **FAILED_STYLE)
+        for y in failed:
+            ax.text(reference, y, " failed", va="center", ha="right", fontsize=8,
+                    color=FAILED_STYLE["edgecolor"])
+    else:
+        ax.bar(failed, reference, label=label, **FAILED_STYLE)
+        for x in failed:
+            ax.text(x, reference, "failed", ha="center", va="top", fontsize=8,
+                    color=FAILED_STYLE["edgecolor"])
+
+
+def _failed_length(values: Sequence[float], *others: float) -> float:
+    """Bar length of a failure: above every finite value shown (100 % if none)."""
+    finite = [v for v in (*values, *others) if np.isfinite(v) and v > 0]
+    return 2.0 * max(finite) if finite else 100.0
 
 
 def _worst_channels(revision: Revision, count: int = MAX_PANELS) -> list[int]:
@@ -168,7 +197,8 @@ def plot_residual_map(study: Study, revision: int = -1, bands: int = 12) -> byte
 
 
 def plot_history(study: Study) -> bytes:
-    """Validation NRMSE revision by revision, with the noise floor."""
+    """Validation NRMSE revision by revision, with the noise floor; a revision whose
+    model could not be simulated is drawn as failed."""
     rows = study.history()
     numbers = [r["number"] for r in rows]
     values = [r["nrmse_percent"] or np.nan for r in rows]
@@ -176,6 +206,7 @@ def plot_history(study: Study) -> bytes:
     figure = new_figure(max(5.0, 1.0 + 1.1 * len(rows)), 4.0)
     ax = figure.subplots()
     ax.bar(numbers, values, color="tab:blue", label="validation NRMSE")
+    _failed_bars(ax, numbers, values, _failed_length(values, *floors))
     ax.plot(numbers, floors, "k--", marker="_", ms=20, label="noise floor")
     ax.set_yscale("log")
     ax.set_xticks(numbers, [f"{r['number']}\n{r['note'][:18]}" for r in rows], fontsize=7)
@@ -190,7 +221,8 @@ def plot_history(study: Study) -> bytes:
 
 
 def plot_candidates(diagnosis: Diagnosis) -> bytes:
-    """Validation NRMSE each candidate reaches, against the revision's and the floor."""
+    """Validation NRMSE each candidate reaches, against the revision's and the floor; a
+    candidate whose model could not be simulated is drawn as failed."""
     candidates = diagnosis.candidates
     if not candidates:
         raise ValueError("the diagnosis has no candidate to plot")
@@ -208,6 +240,8 @@ def plot_candidates(diagnosis: Diagnosis) -> bytes:
     for (colour, verdict), members in groups.items():
         if any(members):
             ax.barh(y[members], np.asarray(values)[members], color=colour, label=verdict)
+    _failed_bars(ax, y, values, _failed_length(values, diagnosis.nrmse_before_percent),
+                 horizontal=True)
     ax.set_yticks(y, labels, fontsize=7)
     ax.axvline(diagnosis.nrmse_before_percent, color="tab:red", label="revision now")
     if math.isfinite(diagnosis.noise_floor_percent):

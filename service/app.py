@@ -62,8 +62,12 @@ def _mark_binary(component: dict[str, Any]) -> None:
 
 def _openapi(app: FastAPI) -> dict[str, Any]:
     if app.openapi_schema is None:
+        # One schema per model: a request shape served back (a job's request, a study's
+        # definition, an identified element to post as `add`) keeps its name and fields in
+        # generated clients, instead of an untyped "-Output" twin.
         schema = get_openapi(title=app.title, version=app.version, description=app.description,
-                             routes=app.routes, tags=app.openapi_tags)
+                             routes=app.routes, tags=app.openapi_tags,
+                             separate_input_output_schemas=False)
         components = schema.setdefault("components", {}).setdefault("schemas", {})
         for model in (Problem, FieldError):
             components[model.__name__] = model.model_json_schema(

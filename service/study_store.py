@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from fnsi.html_report import DiagnosisPart, study_page
 from fnsi.study import Study
 from service.store import JobRecord, Store, new_id, now_iso
 
@@ -215,3 +216,30 @@ class StudyStore:
                 return
             wait(f"waiting for job {pending[0].id} ({pending[0].kind}) of the study")
             time.sleep(_WAIT_INTERVAL)
+
+    # -- report -----------------------------------------------------------------------------
+    def report(self, study_id: str, owner: str) -> bytes | None:
+        """The study's one-page HTML report (:func:`fnsi.html_report.study_page`) from its
+        latest snapshot, the figures of the jobs that computed each revision and every
+        diagnosis that succeeded; None before revision 0 is saved."""
+        snapshot = self.snapshot(study_id)
+        if snapshot is None:
+            return None
+        figures = self._artefacts(snapshot.producers[-1], ("history.png",))
+        for number, job_id in enumerate(snapshot.producers):
+            figures |= self._artefacts(job_id, (f"revision-{number}-",))
+        diagnoses = [DiagnosisPart(json.loads(files.pop("diagnosis.json")), files)
+                     for job in self.jobs(study_id, owner)
+                     if job.kind == "study_diagnosis" and job.state == "succeeded"
+                     and "diagnosis.json" in (files := self._artefacts(job.id, ("",)))]
+        return study_page(snapshot.study, figures, diagnoses)
+
+    def _artefacts(self, job_id: str, prefixes: tuple[str, ...]) -> dict[str, bytes]:
+        """Artefacts of a job whose names start with one of ``prefixes``, by name."""
+        found = {}
+        for name, _ in self.store.list_artefacts(job_id):
+            file = self.store.open_artefact(job_id, name) if name.startswith(prefixes) else None
+            if file is not None:
+                with file:
+                    found[name] = file.read()
+        return found

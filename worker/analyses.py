@@ -1,13 +1,13 @@
 """Distortion analysis jobs: :func:`fnsi.distortion.analyse_distortion` on a stored
-dataset, its summary as the result, analysis.json and distortion.png as artefacts."""
+dataset, its summary as the result, analysis.json, distortion.png and report.html (one
+page with both) as artefacts."""
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from fnsi.distortion import analyse_distortion
-from fnsi.plots import plot_distortion
+from fnsi.report import analysis_artefacts
 from worker.runner import JobContext
 
 
@@ -21,8 +21,6 @@ def analyse_job(context: JobContext) -> dict[str, Any]:
     progress(0.2, "best linear approximation and distortion levels")
     analysis = analyse_distortion(measurement, discard_periods=request["discard_periods"])
     progress(0.7, "distortion figure")
-    document = analysis.to_json()
-    store.write_artefact(job.id, "analysis.json", json.dumps(document, indent=2).encode())
-    store.write_artefact(job.id, "distortion.png",
-                         plot_distortion(analysis, unit="output unit"))
-    return document
+    for name, content in analysis_artefacts(analysis).items():
+        store.write_artefact(job.id, name, content)
+    return analysis.to_json()

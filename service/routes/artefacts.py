@@ -1,4 +1,4 @@
-"""Artefacts of a job: plots (PNG), JSON results, models (NPZ)."""
+"""Artefacts of a job: plots (PNG), JSON results, models (NPZ), one-page reports (HTML)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,9 @@ router = APIRouter(prefix="/v1/jobs/{job_id}/artefacts", tags=["artefacts"],
                    responses=ERROR_RESPONSES)
 
 _MEDIA_TYPES = {".png": "image/png", ".json": "application/json",
-                ".npz": "application/octet-stream", ".csv": "text/csv"}
+                ".npz": "application/octet-stream", ".csv": "text/csv",
+                ".html": "text/html", ".uff": "application/octet-stream",
+                ".mat": "application/octet-stream"}
 
 
 def _media_type(name: str) -> str:
@@ -41,7 +43,7 @@ _BINARY = {"schema": {"type": "string", "format": "binary"}}
 @router.get("/{name}", summary="Download an artefact", response_class=Response,
             responses={200: {"description": "The artefact file.", "content": {
                 media: _BINARY for media in ("application/octet-stream", "image/png",
-                                             "application/json", "text/csv")}}})
+                                             "application/json", "text/csv", "text/html")}}})
 def get_artefact(job: OwnJobDep, store: StoreDep,
                  name: Annotated[str, Path(description="Artefact name, e.g. frf.png.")]
                  ) -> Response:

@@ -197,7 +197,8 @@ def _view(store: Store, studies: StudyStore, record: StudyRecord) -> Study:
         history=history, history_chart=chart,
         diagnoses=[_diagnosis(j) for j in jobs if j.kind == "study_diagnosis"],
         jobs=[StudyJob(id=j.id, kind=j.kind, state=j.state, message=j.message, error=j.error,
-                       url=f"/v1/jobs/{j.id}") for j in jobs])
+                       url=f"/v1/jobs/{j.id}") for j in jobs],
+        report=None if snapshot is None else f"/v1/studies/{record.id}/report.html")
 
 
 @router.post("", response_model=Study, status_code=202, summary="Create a study")
@@ -275,3 +276,19 @@ def create_diagnosis(request: DiagnosisRequest, record: OwnStudyDep, store: Stor
     _check_alive(studies, record)
     return Job.of(_submit(store, queue, record, "study_diagnosis",
                           request.model_dump(mode="json")))
+
+
+@router.get("/{study_id}/report.html", summary="The study's one-page report",
+            response_class=Response, responses=_CONFLICT | {200: {
+                "description": "A self-contained HTML page (figures embedded): the error "
+                               "history, every revision and every diagnosis.",
+                "content": {"text/html": {"schema": {"type": "string"}}}}})
+def get_study_report(record: OwnStudyDep, studies: StudiesDep) -> Response:
+    """The study on one printable page, as it stands now: error history with its chart,
+    each revision's modes, coefficients, errors and figures, each diagnosis's ranked
+    candidates, notes and figures. Images are embedded, so the page opens offline."""
+    page = studies.report(record.id, record.owner)
+    if page is None:
+        raise ProblemError(409, f"study {record.id} has no revision yet: poll the study until "
+                           "revision 0 appears in revisions, then ask again")
+    return Response(page, media_type="text/html")

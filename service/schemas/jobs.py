@@ -1,14 +1,23 @@
-"""Schemas of jobs, their pages and their artefacts."""
+"""Schemas of jobs, their pages and their artefacts.
+
+A job's ``request`` and ``result`` are served typed, each one schema per job kind: the
+stored documents plus ``kind`` (the job's), which tells generated clients which schema
+to read.
+"""
 
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Discriminator, Field, Tag
 
 from service.pagination import NextCursor
+from service.schemas.analyses import AnalysisRequest
+from service.schemas.identifications import IdentificationRequest
 from service.schemas.results import JobResult
+from service.schemas.simulations import ModelSimulation, PresetSimulation
+from service.schemas.studies import DiagnosisRequest, RevisionRequest, StudyRequest
 from service.store import JobRecord, JobState
 
 
@@ -21,6 +30,75 @@ class JobKind(StrEnum):
     STUDY_REVISION = "study_revision"
     STUDY_DIAGNOSIS = "study_diagnosis"
     ANALYSIS = "analysis"
+
+
+_KIND = "The job's kind: tells the kinds of request apart."
+_STUDY = Field(description="The study the job acts on.", examples=["study_0a1b2c3d4e5f60718293"])
+
+
+class PresetSimulationJobRequest(PresetSimulation):
+    """The request of a simulation job of a SmallSat preset."""
+
+    kind: Literal["simulation"] = Field(description=_KIND)
+
+
+class ModelSimulationJobRequest(ModelSimulation):
+    """The request of a simulation job of a generic structure."""
+
+    kind: Literal["simulation"] = Field(description=_KIND)
+
+
+class IdentificationJobRequest(IdentificationRequest):
+    """The request of an identification job."""
+
+    kind: Literal["identification"] = Field(description=_KIND)
+
+
+class AnalysisJobRequest(AnalysisRequest):
+    """The request of a distortion analysis job."""
+
+    kind: Literal["analysis"] = Field(description=_KIND)
+
+
+class StudyJobRequest(StudyRequest):
+    """The request of a study's creation job (revision 0)."""
+
+    kind: Literal["study"] = Field(description=_KIND)
+    study_id: str = _STUDY
+
+
+class RevisionJobRequest(RevisionRequest):
+    """The request of a study revision job."""
+
+    kind: Literal["study_revision"] = Field(description=_KIND)
+    study_id: str = _STUDY
+
+
+class DiagnosisJobRequest(DiagnosisRequest):
+    """The request of a study diagnosis job."""
+
+    kind: Literal["study_diagnosis"] = Field(description=_KIND)
+    study_id: str = _STUDY
+
+
+def _request_tag(value: Any) -> str:
+    """``kind``, and for a simulation which of its two shapes (``model`` or ``preset``)."""
+    data = value if isinstance(value, dict) else value.model_dump()
+    if data.get("kind") == "simulation":
+        return "simulation-model" if "model" in data else "simulation-preset"
+    return str(data.get("kind"))
+
+
+JobRequest = Annotated[
+    Annotated[PresetSimulationJobRequest, Tag("simulation-preset")]
+    | Annotated[ModelSimulationJobRequest, Tag("simulation-model")]
+    | Annotated[IdentificationJobRequest, Tag("identification")]
+    | Annotated[AnalysisJobRequest, Tag("analysis")]
+    | Annotated[StudyJobRequest, Tag("study")]
+    | Annotated[RevisionJobRequest, Tag("study_revision")]
+    | Annotated[DiagnosisJobRequest, Tag("study_diagnosis")],
+    Discriminator(_request_tag)]
+"""The request of a job, by its ``kind`` (a simulation: by ``preset`` or ``model``)."""
 
 
 class Job(BaseModel):
@@ -38,8 +116,12 @@ class Job(BaseModel):
     attempts: int = Field(description="Attempts started (a job whose worker died is re-run "
                           "up to FNSI_MAX_ATTEMPTS times).", examples=[1])
     batch_id: str | None = Field(None, description="Batch the job was submitted in.")
-    request: dict[str, Any] = Field(description="The validated request, defaults filled in.")
-    result: JobResult | None = Field(
+    # A document of no known shape (e.g. stored by an older version) is still served, as
+    # a plain object, rather than failing the response.
+    request: JobRequest | dict[str, Any] = Field(
+        union_mode="left_to_right", description="The validated request, defaults filled "
+        "in, with the job's kind.")
+    result: JobResult | dict[str, Any] | None = Field(
         None, union_mode="left_to_right",
         description="Outcome once succeeded: {\"dataset_id\": ...} for a simulation, "
         "the identification result for an identification; for a study or study_revision "
@@ -58,7 +140,9 @@ class Job(BaseModel):
                    progress=min(max(record.progress, 0.0), 1.0), message=record.message,
                    created_at=record.created_at, started_at=record.started_at,
                    finished_at=record.finished_at, attempts=record.attempts,
-                   batch_id=record.batch_id, request=record.request, result=record.result,
+                   batch_id=record.batch_id, request={**record.request, "kind": record.kind},
+                   result=None if record.result is None else {**record.result,
+                                                              "kind": record.kind},
                    error=record.error, warnings=_warnings(record.result))
 
 

@@ -1,41 +1,40 @@
-"""Schemas of job results, one per kind of job.
+"""Schemas of job results, one per kind of job, told apart by ``kind``.
 
 A result is the JSON document the worker stored; these models document its main fields
 so that generated clients read them as typed attributes. They never reshape it: every
 other key passes through unchanged, and a field missing from the document stays missing
-in the response (it is not filled with its default).
+in the response (it is not filled with its default). The one key added is ``kind``, the
+job's kind (the OpenAPI discriminator of :data:`JobResult`).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_serializer
+from pydantic import Field
 
+from service.schemas.identifications import NonlinearElementSpec
+from service.schemas.identified import (
+    ElementSeparability,
+    ErrorSummary,
+    IdentifiedCoefficient,
+    RefinementSummary,
+    StoredDocument,
+)
 from service.schemas.studies import Candidate, HistoryRow, RevisionRecord
 
+_KIND = "The job's kind: tells the kinds of result apart."
 
-class _Document(BaseModel):
-    """A stored JSON document: documented fields, every other key kept as is."""
-
-    model_config = ConfigDict(extra="allow")
-
-    @model_serializer(mode="wrap")
-    def _keys_of_the_document(self, handler):
-        # Defaults document optional fields; emitting them would add keys the worker
-        # never wrote.
-        return {k: v for k, v in handler(self).items() if k in self.model_fields_set}
-
-
-class SimulationJobResult(_Document):
+class SimulationJobResult(StoredDocument):
     """Result of a simulation job: the dataset it produced (its truth is the artefact
     truth.json)."""
 
+    kind: Literal["simulation"] = Field(description=_KIND)
     dataset_id: str = Field(description="The simulated dataset.",
                             examples=["ds_5f1c0e2a9b7d4c3e8a10"])
 
 
-class IdentifiedMode(_Document):
+class IdentifiedMode(StoredDocument):
     """A physical mode of the identified underlying linear system."""
 
     frequency_hz: float = Field(description="Natural frequency [Hz].", examples=[13.7])
@@ -47,51 +46,21 @@ class IdentifiedMode(_Document):
                                    "orders; null when none follows.")
 
 
-class IdentifiedCoefficient(_Document):
-    """mu_j(omega) of one basis function of a nonlinear element, summarised over the
-    band (paper Section II.E); the estimate only when identifiable."""
-
-    name: str = Field(description="Element and basis function.")
-    element: int = Field(description="Index of the element in settings.elements.")
-    basis: int = Field(description="Index of the basis function in the element.")
-    method: str = Field(description="How mu_j(omega) was computed.")
-    identifiable: bool = Field(description="The data determine the coefficient.")
-    reason: str | None = Field(description="Why it is not identifiable.")
-    mean_real: float | None = Field(None, description="Estimate: weighted mean of Re mu "
-                                    "over the band.")
-    mean_imag: float | None = Field(None, description="Weighted mean of Im mu (ideally "
-                                    "0).")
-    log10_real_imag: float | None = Field(None, description="log10(|Re mu| / |Im mu|): "
-                                          "large for a physical element.")
-    variation: float | None = Field(None, description="Relative spread of Re mu over "
-                                    "frequency [-].")
 
 
-class IdentifiedStiffnessCurve(_Document):
+class IdentifiedStiffnessCurve(StoredDocument):
     """Force of an identified element against relative displacement (or velocity)."""
 
-    element: dict[str, Any] = Field(description="The element with its identified "
-                                    "coefficients (JSON shape of NonlinearElementSpec).")
+    element: NonlinearElementSpec = Field(description="The element with its identified "
+                                       "coefficients (NonlinearElementSpec).")
     variable: str = Field(description="Abscissa: displacement or velocity.")
     x: list[float] = Field(description="Abscissae over the measured range.")
     force: list[float] = Field(description="Element force at x.")
 
 
-class ErrorSummary(_Document):
-    """Errors of the model simulated with the measured input, or why it could not be."""
-
-    overall_nrmse_percent: float | None = Field(None, description="NRMSE over all "
-                                                "outputs, weighted by power [%].")
-    overall_nrmse_db: float | None = Field(None, description="The same in dB.")
-    overall_noise_floor_percent: float | None = Field(None, description="What a perfect "
-                                                      "model would reach [%].")
-    overall_noise_floor_db: float | None = Field(None, description="The same in dB.")
-    channels: list[dict[str, Any]] | None = Field(None, description="Per output: "
-                                                  "nrmse_percent, nrmse_db, noise floor.")
-    failure: str | None = Field(None, description="Why the model could not be simulated.")
 
 
-class IdentificationErrors(_Document):
+class IdentificationErrors(StoredDocument):
     """Simulation errors on the estimation data and, if given, the validation data."""
 
     estimation: ErrorSummary = Field(description="On the estimation dataset.")
@@ -99,43 +68,35 @@ class IdentificationErrors(_Document):
                                             "(present when one was given).")
 
 
-class RefinementSummary(_Document):
-    """How the output-error refinement changed the model's simulation error on the
-    estimation data (requests with refine: true)."""
-
-    initial_percent: float | None = Field(description="Simulation error of the FNSI model "
-                                          "on the residual lines [%]; null when not refined.")
-    final_percent: float | None = Field(description="The same after refinement [%].")
-    iterations: int = Field(description="Accepted Levenberg-Marquardt steps.")
-    evaluations: int = Field(description="Steady-state simulations run.")
-    seconds: float = Field(description="Wall time [s].")
-    message: str = Field(description="Why the minimisation stopped, or why the model was "
-                         "not refined.")
 
 
-class ElementSeparability(_Document):
-    """Whether the data tell one element's force apart from the other extended inputs
-    and from a linear spring and dashpot at the elements (fnsi.separability)."""
-
-    element: int = Field(description="Index of the element in settings.elements.")
-    name: str = Field(description="The element.")
-    unexplained: float = Field(description="Smallest fraction of a combination of its "
-                               "basis functions that the others cannot reproduce on the "
-                               "analysis lines [-]: 1 separable, 0 not.", examples=[0.65])
-    partners: list[str] = Field(description="What reproduces that combination, largest "
-                                "share first: elements, 'input forces' or the linear "
-                                "structure.")
-    confounded: bool = Field(description="unexplained below fnsi.separability."
-                             "SEPARABILITY_LIMIT (0.05): the curve can be off by more than "
-                             "twenty times the model's relative error.")
-    concern: str | None = Field(description="What a confounded element means and what to "
-                                "change; null when separable.")
 
 
-class IdentificationJobResult(_Document):
+class UsedSettings(StoredDocument):
+    """The settings an identification ran with (fnsi.identification.IdentificationSettings):
+    the request's, "auto" left as asked, spline knots resolved."""
+
+    band: list[float] = Field(description="Analysis band [Hz].", examples=[[5.0, 50.0]])
+    block_rows: int | str = Field(description="Block rows i, or \"auto\".")
+    order: int | str = Field(description="Requested model order, or \"auto\".")
+    max_order: int = Field(description="Highest order of the stabilisation diagram.")
+    inputs: list[str] | None = Field(description="Input channels used; null: all.")
+    outputs: list[str] | None = Field(description="Output channels used; null: all.")
+    line_set: str = Field(description="all or excited.")
+    discard_periods: int = Field(description="Leading periods dropped.")
+    elements: list[NonlinearElementSpec] = Field(description="Nonlinear elements, spline knots "
+                                              "resolved.")
+    weighting: bool = Field(description="Noise-covariance weighting.")
+    driving_points: list[list[str]] = Field(description="(input, output) driving points.")
+    frequency_warping: bool = Field(description="Warped frequency variable.")
+    refine: bool = Field(description="Output-error refinement asked.")
+
+
+class IdentificationJobResult(StoredDocument):
     """Result of an identification job: result.json without the model matrices,
     stabilisation diagram and singular values (download result.json or model.npz)."""
 
+    kind: Literal["identification"] = Field(description=_KIND)
     warnings: list[str] = Field(
         [], description="What makes the model unusable, with what to change; empty when "
         "all is well. A model whose linear part is unstable (an explicit order, or the "
@@ -154,8 +115,8 @@ class IdentificationJobResult(_Document):
     stiffness: list[IdentifiedStiffnessCurve] = Field(description="One curve per element whose "
                                             "coefficients are all identifiable.")
     timings_s: dict[str, float] = Field(description="Wall time per stage [s].")
-    settings: dict[str, Any] | None = Field(description="Identification settings used, "
-                                            "spline knots resolved.")
+    settings: UsedSettings | None = Field(description="Identification settings used, "
+                                          "spline knots resolved.")
     errors: IdentificationErrors = Field(description="Simulation errors of the model.")
     refinement: RefinementSummary | None = Field(
         None, description="Output-error refinement; null when not requested.")
@@ -164,23 +125,25 @@ class IdentificationJobResult(_Document):
         "from the others'?")
 
 
-class RevisionSummary(_Document, RevisionRecord):
+class RevisionSummary(StoredDocument, RevisionRecord):
     """A study revision: its model and validation errors, as the job stored it."""
 
 
-class StudyJobResult(_Document):
+class StudyJobResult(StoredDocument):
     """Result of a study or study_revision job: the revision it computed and the error
     history of the study."""
 
+    kind: Literal["study", "study_revision"] = Field(description=_KIND)
     study_id: str = Field(description="The study.")
     revision: int = Field(description="Number of the revision computed.")
     revision_summary: RevisionSummary = Field(description="That revision.")
     history: list[HistoryRow] = Field(description="Error history, one row per revision.")
 
 
-class DiagnosisJobResult(_Document):
+class DiagnosisJobResult(StoredDocument):
     """Result of a study_diagnosis job: ranked candidate missing effects."""
 
+    kind: Literal["study_diagnosis"] = Field(description=_KIND)
     study_id: str = Field(description="The study.")
     revision: int = Field(description="Diagnosed revision.")
     nrmse_before_percent: float | None = Field(description="Validation NRMSE of that "
@@ -193,10 +156,7 @@ class DiagnosisJobResult(_Document):
     timings: dict[str, float] = Field(description="Wall time per stage [s].")
 
 
-# Exactly one kind matches a document: each has required fields the others lack. A
-# document of none of these shapes (e.g. stored by an older worker) is still served, as a
-# plain object, rather than failing the response.
-class LineGroupLevel(_Document):
+class LineGroupLevel(StoredDocument):
     """Output power against noise power over a group of lines of one output."""
 
     lines: int = Field(description="Lines in the group (0: the excitation leaves none).",
@@ -209,7 +169,7 @@ class LineGroupLevel(_Document):
     above_noise: bool = Field(description="p below 0.001 and at least 1 dB.")
 
 
-class ChannelDistortionLevels(_Document):
+class ChannelDistortionLevels(StoredDocument):
     """The distortion levels of one output."""
 
     name: str = Field(description="Output channel.", examples=["NC2w_Z"])
@@ -221,9 +181,10 @@ class ChannelDistortionLevels(_Document):
                                        "times its upper edge.")
 
 
-class AnalysisJobResult(_Document):
+class AnalysisJobResult(StoredDocument):
     """Result of an analysis job: nonlinear distortion levels and the verdict."""
 
+    kind: Literal["analysis"] = Field(description=_KIND)
     band_hz: list[float] = Field(description="Lowest and highest excited line [Hz].",
                                  examples=[[5.5, 49.5]])
     odd_design: bool = Field(description="Only odd lines are excited, so odd and even "
@@ -235,5 +196,6 @@ class AnalysisJobResult(_Document):
                          "words with the numbers.")
 
 
-JobResult = (SimulationJobResult | IdentificationJobResult | StudyJobResult
-             | DiagnosisJobResult | AnalysisJobResult | dict[str, Any])
+JobResult = Annotated[SimulationJobResult | IdentificationJobResult | StudyJobResult
+                      | DiagnosisJobResult | AnalysisJobResult, Field(discriminator="kind")]
+"""The result of a job, by its ``kind``."""

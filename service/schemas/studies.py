@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
@@ -10,6 +10,12 @@ from fnsi.diagnosis import Effect
 from service.pagination import NextCursor
 from service.schemas.base import RequestModel
 from service.schemas.identifications import Auto, IdentificationRequest, NonlinearElementSpec
+from service.schemas.identified import (
+    ElementSeparability,
+    ErrorSummary,
+    IdentifiedCoefficient,
+    RefinementSummary,
+)
 from service.store import JobState
 
 _CLEARANCE = {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5}
@@ -129,10 +135,10 @@ class Candidate(BaseModel):
     """A candidate missing effect, validated by identification and simulation."""
 
     effect: Effect = Field(description="Kind of missing effect.")
-    element: dict[str, Any] | None = Field(
-        None, description="Element to add, in the JSON shape of NonlinearElementSpec "
-        "with its identified coefficients: POST it as a revision's `add`. Null for a "
-        "missing mode.", examples=[{**_CLEARANCE, "coefficients": [98.5]}])
+    element: NonlinearElementSpec | None = Field(
+        None, description="Element to add (NonlinearElementSpec) with its identified "
+        "coefficients: POST it as a revision's `add`. Null for a missing mode.",
+        examples=[{**_CLEARANCE, "coefficients": [98.5]}])
     order: int = Field(description="Model order of the validated model.", examples=[10])
     location: Location | None = Field(None, description="Where it acts; null for a mode.")
     validation_nrmse_percent: float | None = Field(
@@ -184,6 +190,16 @@ class RevisionArtefacts(BaseModel):
     all: str = Field(description="Listing of every artefact of the job.")
 
 
+class RevisionModes(BaseModel):
+    """Natural frequencies and damping ratios of a revision's underlying linear system,
+    mode by mode (same length)."""
+
+    frequency_hz: list[float] = Field(description="Natural frequencies [Hz].",
+                                      examples=[[13.7, 21.2]])
+    damping_ratio: list[float] = Field(description="Damping ratios [-].",
+                                       examples=[[0.012, 0.009]])
+
+
 class RevisionRecord(BaseModel):
     """One model of the study and its validation errors, as the study stores it (also
     the ``revision_summary`` of a study job's result)."""
@@ -192,33 +208,29 @@ class RevisionRecord(BaseModel):
     note: str = Field(description="What changed.", examples=["add clearance NC2w_Z-NC2b_Z"])
     order: int | str = Field(description="Requested order (or \"auto\").")
     identified_order: int = Field(description="Order of the identified model.")
-    elements: list[dict[str, Any]] = Field(
-        description="Requested nonlinear elements (JSON shape of NonlinearElementSpec).",
+    elements: list[NonlinearElementSpec] = Field(
+        description="Requested nonlinear elements (no coefficients).",
         examples=[[_CLEARANCE]])
-    coefficients: list[dict[str, Any]] = Field(
+    coefficients: list[IdentifiedCoefficient] = Field(
         description="Identified coefficients per basis function with quality criteria.")
-    modal: dict[str, list[float]] = Field(
-        description="frequency_hz [Hz] and damping_ratio [-] of the underlying linear "
-        "system.")
+    modal: RevisionModes = Field(description="Modes of the underlying linear system.")
     nrmse_percent: float | None = Field(description="Overall validation NRMSE [%] (channels "
                                         "weighted by power); null: not simulated.")
     noise_floor_percent: float | None = Field(description="Overall noise floor [%]: what a "
                                               "perfect model would reach.")
-    validation: dict[str, Any] | None = Field(
+    validation: ErrorSummary | None = Field(
         description="Validation errors: per channel NRMSE [%] and [dB], noise floor, "
         "excess over the floor; null if the model could not be simulated.")
     failure: str | None = Field(None, description="Why the model could not be simulated.")
-    model_elements: list[dict[str, Any]] | None = Field(
+    model_elements: list[NonlinearElementSpec] | None = Field(
         None, description="The identified model's elements: spline knots resolved, "
         "clearance gaps refined when the study refines its revisions.")
-    refinement: dict[str, Any] | None = Field(
-        None, description="How refinement changed the simulation error (initial_percent, "
-        "final_percent, iterations, evaluations, seconds, message); null when the study "
+    refinement: RefinementSummary | None = Field(
+        None, description="How refinement changed the simulation error; null when the study "
         "does not refine.")
-    separability: list[dict[str, Any]] | None = Field(
+    separability: list[ElementSeparability] | None = Field(
         None, description="Per element: whether the data tell its force apart from the "
-        "others' (unexplained, partners, confounded, concern; see the identification "
-        "result's separability).")
+        "others' (see the identification result's separability).")
 
 
 class Revision(RevisionRecord):
@@ -263,8 +275,8 @@ class Study(BaseModel):
     id: str = Field(description="Study id.", examples=["study_0a1b2c3d4e5f60718293"])
     name: str = Field(description="Free label.")
     created_at: str = Field(description="Creation time, ISO 8601 UTC.")
-    definition: dict[str, Any] = Field(description="The creation request (StudyRequest), "
-                                       "defaults filled in.")
+    definition: StudyRequest = Field(description="The creation request, defaults filled "
+                                     "in.")
     revisions: list[Revision] = Field(description="Revisions computed so far, in order.")
     history: list[HistoryRow] = Field(description="Error history: one row per revision.")
     history_chart: str | None = Field(
@@ -272,6 +284,10 @@ class Study(BaseModel):
         examples=["/v1/jobs/job_7d0c5e1f2a3b4c5d6e7f/artefacts/history.png"])
     diagnoses: list[StudyDiagnosis] = Field(description="Diagnoses requested, in order.")
     jobs: list[StudyJob] = Field(description="Every job of the study, oldest first.")
+    report: str | None = Field(
+        None, description="Path of the study's one-page HTML report (figures embedded); "
+        "null before revision 0.", examples=["/v1/studies/study_0a1b2c3d4e5f60718293/"
+                                             "report.html"])
 
 
 class StudySummary(BaseModel):

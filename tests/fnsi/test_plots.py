@@ -115,3 +115,19 @@ def test_error_plot():
     measured = np.tile(y, (4, 1)) + 0.01 * rng.normal(size=(4000, 2))
     errors = model_errors(measured, 0.98 * y, 1000.0, periods=4, band=(1.0, 100.0))
     _assert_png(plots.plot_errors(errors))
+
+
+def test_the_rings_at_the_chosen_order_are_the_results_confirmed_modes():
+    """The stabilisation diagram and the result agree on which modes are confirmed."""
+    from fnsi.identification import IdentificationSettings, identify
+    from tests.fnsi.test_cli import HIDDEN
+    from tests.fnsi.test_diagnosis import chain, measure
+
+    result = identify(measure(chain(HIDDEN), 1), IdentificationSettings(
+        band=(5.0, 60.0), block_rows=15, max_order=20, driving_points=(("F_x1", "x1"),)))
+    points = plots.confirmed_points(result.stabilisation)
+    ringed = np.sort(points[points[:, 1] == result.order, 0])
+    modal = result.modal
+    confirmed = np.sort(modal.frequencies[modal.confirmed])
+    assert confirmed.size >= 3  # modes of the chain the automatic order keeps
+    np.testing.assert_array_equal(ringed, confirmed)

@@ -41,7 +41,7 @@ def test_an_analysis_job_finds_the_odd_distortions_of_the_cubic_output_only(clie
     assert not channels["cubic"]["even"]["above_noise"]
     assert result["odd_design"] and "odd nonlinear distortions" in result["verdict"]
     names = {a["name"] for a in client.get(f"/v1/jobs/{job['id']}/artefacts").json()}
-    assert {"analysis.json", "distortion.png"} <= names
+    assert {"analysis.json", "distortion.png", "report.html"} <= names
     png = client.get(f"/v1/jobs/{job['id']}/artefacts/distortion.png")
     assert png.content.startswith(b"\x89PNG") and len(png.content) > 20_000
 

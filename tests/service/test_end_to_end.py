@@ -102,7 +102,8 @@ def test_every_artefact_downloads(stack, identified):
         listing = client.get(f"/v1/jobs/{identified['id']}/artefacts").json()
         names = {a["name"] for a in listing}
         assert names == {"stabilisation.png", "frf.png", "coefficients.png", "stiffness.png",
-                         "macx.png", "errors.png", "result.json", "model.npz"}
+                         "macx.png", "errors.png", "result.json", "model.npz", "report.html",
+                         "modes.uff", "result.mat"}
         for artefact in listing:
             response = client.get(artefact["url"])
             assert response.status_code == 200

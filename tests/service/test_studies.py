@@ -22,6 +22,7 @@ from service.deps import PUBLIC_OWNER
 from service.pagination import encode_cursor
 from service.store import Store
 from service.study_store import StudyStore
+from tests.chromium import CHROMIUM, MISSING, render
 from tests.fnsi.test_cli import HIDDEN
 from tests.fnsi.test_diagnosis import REDUCTION, chain, measure
 from tests.service.servers import start_stack, wait_for_job
@@ -128,6 +129,38 @@ def test_added_element_lowers_the_error_and_the_study_shows_the_history(server, 
             response = client.get(link)
             assert response.status_code == 200, link
         assert client.get(study["history_chart"]).content.startswith(PNG)
+
+
+def test_the_study_report_is_served_with_every_figure_and_renders(server, worked, tmp_path):
+    study = worked["study"]
+    with server.client(headers=ALICE) as client:
+        response = client.get(study["report"])
+        assert response.status_code == 200, response.text
+        assert response.headers["content-type"].startswith("text/html")
+        figures = {name for job in study["jobs"] if job["kind"] != "study"
+                   for name in (a["name"] for a in client.get(
+                       f"/v1/jobs/{job['id']}/artefacts").json()) if name.endswith(".png")}
+        with server.client(headers=BOB) as other:
+            assert other.get(study["report"]).status_code == 404
+    page = response.text
+    for revision in study["revisions"]:
+        assert f"Revision {revision['number']}: {revision['note']}" in page
+    assert "Diagnosis of revision 0" in page and study["diagnoses"][0]["summary"] in page
+    # history, 3 figures per revision, the diagnosis's stiffness, screening, candidates
+    assert page.count("<img src=\"data:image/png;base64,") == 1 + 3 * 3 + 3
+    assert {"history.png", "stiffness.png", "candidates.png"} <= figures
+    if CHROMIUM is None:
+        pytest.skip(MISSING)
+    (tmp_path / "report.html").write_bytes(response.content)
+    rendering = render(tmp_path / "report.html")
+    assert len(rendering.images) == 13 and all(i["naturalWidth"] > 0 for i in rendering.images)
+    assert rendering.errors == []
+
+
+def test_a_study_without_revision_has_no_report_yet(tmp_path):
+    studies = StudyStore(Store(tmp_path))
+    record = studies.create("alice", "empty", {})
+    assert studies.report(record.id, "alice") is None
 
 
 def test_revisions_apply_in_request_order_without_losing_one(worked):
