@@ -49,6 +49,7 @@ from scipy.optimize import minimize, minimize_scalar
 from fnsi.errors import json_float
 from fnsi.nonlinear import NonlinearElement
 from fnsi.screening import ScreeningProblem
+from fnsi.units import ModelUnits
 
 if TYPE_CHECKING:
     from fnsi.study import Evaluation, Study
@@ -335,6 +336,8 @@ class Diagnosis:
         Wall time of each stage [s].
     notes : tuple of str
         What could not be done and why (e.g. a curve the data cannot support).
+    units : ModelUnits
+        Units of the study's channels: curves and screening shapes are in them.
     """
 
     revision: int
@@ -347,6 +350,7 @@ class Diagnosis:
     summary: str
     timings: dict[str, float]
     notes: tuple[str, ...] = ()
+    units: ModelUnits = field(default_factory=lambda: ModelUnits("", "", "displacement"))
 
     @property
     def found(self) -> bool:
@@ -366,7 +370,8 @@ class Diagnosis:
             "proposals": [{"effect": p.effect.value, **p.location.to_json(),
                            "element": p.element.to_json(), "reduction": p.reduction}
                           for p in self.proposals],
-            "stiffness_curves": [c.to_json() for c in self.curves],
+            "units": self.units.to_json(),
+            "stiffness_curves": [c.to_json(self.units) for c in self.curves],
             "timings": dict(self.timings),
             "notes": list(self.notes),
         }
@@ -979,4 +984,4 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     report(1.0, "diagnosis done")
     return Diagnosis(index, before, floor, tuple(candidates), scores, tuple(proposals),
                      tuple(curves), _summary(candidates, before, floor), timings,
-                     tuple(notes))
+                     tuple(notes), study.units)

@@ -133,7 +133,7 @@ def identification_report(result: IdentificationResult, settings: Identification
     kind, errors = list(compared.items())[-1]
     if isinstance(errors, ModelErrors):
         artefacts["errors.png"] = plots.plot_errors(
-            errors, outputs=_worst_outputs(errors), unit="output unit",
+            errors, outputs=_worst_outputs(errors), unit=result.units.output,
             title=f"Model error on the {kind} data against the noise floor")
     artefacts["result.json"] = json.dumps(document).encode()
     buffer = io.BytesIO()
@@ -188,7 +188,7 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
         frequencies, H = frf
         fitted = model.frequency_response(frequencies)[:, :, :model.n_inputs]
         out["frf.png"] = plots.plot_frf(frequencies, H, fitted, output_names=model.output_names,
-                                        input_names=model.input_names)
+                                        input_names=model.input_names, unit=result.units.frf)
     if result.stabilisation is not None:
         background = None if frf is None else (frf[0], np.abs(frf[1]).sum(axis=(1, 2)))
         out["stabilisation.png"] = plots.plot_stabilisation(
@@ -197,14 +197,19 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
     known = [c for c in result.coefficients if c.identifiable]
     if known:
         trues = [_true_element(truth, model.elements[c.element]) for c in known]
+        units = [result.coefficient_unit(c) for c in known]
+        shared = len(set(units)) == 1   # else each curve's legend entry names its unit
         out["coefficients.png"] = plots.plot_coefficients(
             known[0].frequencies, np.column_stack([c.values for c in known]),
-            [c.name for c in known],
+            [c.name if shared else f"{c.name} [{unit}]" for c, unit in zip(known, units,
+                                                                           strict=True)],
             truth=[None if t is None or t.coefficients is None else t.coefficients[c.basis]
-                   for t, c in zip(trues, known, strict=True)])
+                   for t, c in zip(trues, known, strict=True)],
+            unit=units[0] if shared else "unit in the legend")
     if result.stiffness:
         out["stiffness.png"] = plots.plot_stiffness(
             result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness],
+            units=(result.units.length, result.units.force),
             warnings=[_confounding(result, c.element) for c in result.stiffness])
     out["macx.png"] = _macx_figure(result, truth)
     return out

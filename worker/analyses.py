@@ -24,5 +24,5 @@ def analyse_job(context: JobContext) -> dict[str, Any]:
     document = analysis.to_json()
     store.write_artefact(job.id, "analysis.json", json.dumps(document, indent=2).encode())
     store.write_artefact(job.id, "distortion.png",
-                         plot_distortion(analysis, unit="output unit"))
+                         plot_distortion(analysis))
     return document

@@ -80,11 +80,13 @@ def test_npz_members_the_dataset_does_not_use_stay_compressed(tmp_path):
     assert peak < 10 * 2**20, peak
 
 
-def test_hdf5_data_in_a_group_get_a_hint(tmp_path):
+def test_hdf5_data_in_one_group_are_read_from_it(tmp_path):
+    """The one group holding u and y is read; rate and names at the root apply to it."""
     path = formats.write_h5(REC, tmp_path / "r.h5")
     with h5py.File(path, "r+") as f:
         f.create_group("run1")
         for name in ("u", "y"):
             f.move(name, f"run1/{name}")
-    with pytest.raises(ValueError, match=r"groups \['run1'\] hold \['u', 'y'\].*f.move"):
-        read_measurement(path, "h5")
+    m, _ = read_measurement(path, "h5")
+    np.testing.assert_array_equal(m.y[0], REC.y)
+    assert (m.fs, m.input_names) == (REC.fs, REC.input_names)
