@@ -48,9 +48,15 @@ def common(units: Sequence[str], placeholder: str) -> str:
     return distinct.pop() if len(distinct) == 1 and NOT_GIVEN not in distinct else placeholder
 
 
-def _grouped(unit: str) -> str:
-    """``unit`` in parentheses when it is a compound or a scaled unit ("mm/s", "20 N")."""
-    if unit in _PLACEHOLDERS or not re.search(r"[/·* ^]", unit):
+def _grouped(unit: str, binding: str = "/· *") -> str:
+    """``unit`` in parentheses when it holds an operator of ``binding`` ("mm/s", "20 N";
+    a power binds tighter than a quotient, so "mm^3" stays bare under a fraction bar)."""
+    outside = unit
+    for placeholder in _PLACEHOLDERS:   # their space is no operator
+        outside = outside.replace(placeholder, "U")
+    while (inner := re.sub(r"\([^()]*\)", "", outside)) != outside:  # operators at top level
+        outside = inner
+    if not any(c in outside for c in binding):
         return unit
     return f"({unit})"
 
@@ -64,7 +70,7 @@ def per(numerator: str, denominator: str) -> str:
 
 def power(unit: str, exponent: float) -> str:
     """``unit`` raised to ``exponent`` ("mm^3", "(mm/s)^2", "mm^1.5")."""
-    return unit if exponent == 1 else f"{_grouped(unit)}^{exponent:g}"
+    return unit if exponent == 1 else f"{_grouped(unit, '/· *^')}^{exponent:g}"
 
 
 def displacement_unit(output_unit: str, quantity: str) -> str:
