@@ -16,6 +16,7 @@ float64 abscissa, four times the file.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -106,8 +107,8 @@ def _quantity(outputs: list[str], types: dict[str, int]) -> str | None:
         groups = "; ".join(f"{q}: {kinds[q][:10]}" for q in known)
         raise ValueError(f"the UFF outputs mix quantities ({groups}); one identification "
                          "takes outputs of one quantity: choose them with the option outputs, "
-                         f"e.g. {{\"outputs\": {kinds[known[0]][:3]}}}, and upload the file "
-                         "once per quantity")
+                         f"e.g. {json.dumps({'outputs': kinds[known[0]][:3]})}, and upload "
+                         "the file once per quantity")
     return known[0] if known else None
 
 
