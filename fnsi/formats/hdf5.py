@@ -79,7 +79,7 @@ def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool,
             data = canonical(data)
             for record, units in _UNITS_OF.items():
                 if units not in data and record in nodes:
-                    data[units] = _units_attribute(nodes[record], limits, matlab)
+                    data[units] = _units_attribute(nodes[record], limits)
             missing = [k for k in _RECORDS if k not in data]
             if missing:
                 raise ValueError(f"{what} file lacks datasets {missing} in {where.name}; it "
@@ -155,18 +155,17 @@ def _members(group: h5py.Group) -> list[str]:
             for key in _hard_links(group)[:50]]
 
 
-def _units_attribute(node: h5py.Dataset, limits: DecodeLimits,
-                     matlab: bool) -> list[str] | None:
-    """The string attribute ``units`` of a record dataset (one unit, or one per column),
-    its size checked before it is read."""
+def _units_attribute(node: h5py.Dataset, limits: DecodeLimits) -> list[str] | None:
+    """The string attribute ``units`` of a record dataset (one unit for every column, or
+    one per column), its size checked before it is read."""
     if "units" not in node.attrs:
         return None
     attribute = h5py.h5a.open(node.id, b"units")
     limits.check_bytes(array_bytes(attribute.shape or (), attribute.dtype.itemsize),
                        f"attribute units of {node.name}")
-    units = strings(node.attrs["units"], f"the units attribute of {node.name}")
-    columns = node.shape[0] if matlab else node.shape[-1]
-    return units * columns if len(units) == 1 and node.ndim >= 2 else units
+    values = np.atleast_1d(node.attrs["units"]).ravel()
+    return strings([v.decode() if isinstance(v, bytes) else v for v in values],
+                   f"the units attribute of {node.name}")
 
 
 def _check_storage(node: h5py.Dataset, name: str) -> None:

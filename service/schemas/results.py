@@ -65,6 +65,9 @@ class IdentifiedCoefficient(_Document):
                                           "large for a physical element.")
     variation: float | None = Field(None, description="Relative spread of Re mu over "
                                     "frequency [-].")
+    unit: str | None = Field(None, description="Unit of mu: input unit per unit of the "
+                             "basis function (fnsi.units; 'input unit', 'output unit' where "
+                             "the dataset gives none).", examples=["N/mm^3"])
 
 
 class IdentifiedStiffnessCurve(_Document):
@@ -75,6 +78,20 @@ class IdentifiedStiffnessCurve(_Document):
     variable: str = Field(description="Abscissa: displacement or velocity.")
     x: list[float] = Field(description="Abscissae over the measured range.")
     force: list[float] = Field(description="Element force at x.")
+    x_unit: str | None = Field(None, description="Unit of x.", examples=["mm"])
+    force_unit: str | None = Field(None, description="Unit of force.", examples=["N"])
+
+
+class DataUnits(_Document):
+    """Units of the identified channels and of the FRF (fnsi.units): the dataset's,
+    'input unit' and 'output unit' where it gives none."""
+
+    input: str = Field(description="Unit of the inputs (forces).", examples=["N"])
+    output: str = Field(description="Unit of the outputs.", examples=["mm"])
+    displacement: str = Field(description="Unit of displacements (the output unit, "
+                              "integrated for velocities and accelerations).",
+                              examples=["mm"])
+    frf: str = Field(description="Unit of an FRF: output per input unit.", examples=["mm/N"])
 
 
 class ErrorSummary(_Document):
@@ -149,6 +166,7 @@ class IdentificationJobResult(_Document):
     order: int = Field(description="Model order n.", examples=[10])
     modes: list[IdentifiedMode] = Field(description="Physical modes in the band.")
     output_names: list[str] = Field(description="Output channels, order of mode shapes.")
+    units: DataUnits | None = Field(None, description="Units of the data identified from.")
     coefficients: list[IdentifiedCoefficient] = Field(
         description="Nonlinear coefficients with quality criteria.")
     stiffness: list[IdentifiedStiffnessCurve] = Field(description="One curve per element whose "
@@ -231,6 +249,8 @@ class AnalysisJobResult(_Document):
     realisations: int = Field(description="Realisations analysed.", examples=[1])
     periods: int = Field(description="Periods kept.", examples=[2])
     channels: list[ChannelDistortionLevels] = Field(description="Levels per output.")
+    unit: str | None = Field(None, description="Unit of the outputs the levels refer to.",
+                             examples=["mm"])
     verdict: str = Field(description="How nonlinear, which law, what can be told, in "
                          "words with the numbers.")
 
