@@ -85,6 +85,19 @@ def canonical(variables: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+_CANONICAL_NAMES = ("u", "y", "fs", "periods", "quantity", "input_names", "output_names",
+                    "input_units", "output_units")
+
+
+def spelling_hint(found: list[str]) -> str:
+    """A hint naming variables spelled like a canonical or MATLAB name in another case
+    (``U`` for ``u``, ``FS`` for ``fs``, ``inputdata`` for ``InputData``), else ""."""
+    known = {name.lower(): name for name in (*MATLAB_SPELLINGS, *_CANONICAL_NAMES)}
+    renames = [f"{name} to {known[name.lower()]}" for name in found
+               if name.lower() in known and name != known[name.lower()]]
+    return f"; names are case-sensitive: rename {', '.join(renames[:5])}" if renames else ""
+
+
 def _rate_of_interval(value: Any) -> float:
     interval = number(value, "Ts", float)
     if not (np.isfinite(interval) and interval > 0):
@@ -188,7 +201,8 @@ def finish(measurement: Measurement, periods: int | None,
 
 
 def strings(value: Any, name: str) -> list[str] | None:
-    """Channel names from a string array, MATLAB char matrix or cell array of strings."""
+    """Channel names or units from a string array, MATLAB char matrix or cell array of
+    strings."""
     if value is None:
         return None
     flat = np.asarray(value, dtype=object).ravel()

@@ -29,7 +29,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from fnsi.formats.fields import MATLAB_SPELLINGS, canonical, scalar, strings
+from fnsi.formats.fields import MATLAB_SPELLINGS, canonical, scalar, spelling_hint, strings
 from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, is_numeric
 
 _RECORDS = ("u", "y")
@@ -84,7 +84,8 @@ def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool,
             if missing:
                 raise ValueError(f"{what} file lacks datasets {missing} in {where.name}; it "
                                  "needs u (samples x m), y (samples x l) and fs (Hz) there; "
-                                 f"{where.name} holds {_members(where)}: name the group "
+                                 f"{where.name} holds {_members(where)}"
+                                 f"{spelling_hint(_hard_links(where))}; name a group "
                                  "holding them with the option group (meta {\"group\": "
                                  "\"run1\"}, fnsi --group run1)")
     except (OSError, TypeError, KeyError, RuntimeError) as err:  # h5py's errors on bad files

@@ -31,7 +31,13 @@ import numpy as np
 import scipy.io
 
 from fnsi.formats import hdf5
-from fnsi.formats.fields import MATLAB_SPELLINGS, ReadOptions, canonical, strings
+from fnsi.formats.fields import (
+    MATLAB_SPELLINGS,
+    ReadOptions,
+    canonical,
+    spelling_hint,
+    strings,
+)
 from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes
 
 _FILE_HEADER = 128
@@ -112,7 +118,8 @@ def read_fields(path: Path, limits: DecodeLimits,
         raise ValueError(f"MATLAB file lacks variables {missing or ['fs']}; it needs u "
                          "(samples x m), y (samples x l) and fs (Hz), or the iddata "
                          "spellings InputData, OutputData and Ts; it holds "
-                         f"{[v.name for v in found][:20]}{_IDDATA_HINT if objects else ''}")
+                         f"{[v.name for v in found][:20]}{_IDDATA_HINT if objects else ''}"
+                         f"{spelling_hint([v.name for v in found])}")
     quantity = data.get("quantity")
     return {"u": np.asarray(data["u"], dtype=float), "y": np.asarray(data["y"], dtype=float),
             "fs": data["fs"], "periods": data.get("periods"),

@@ -174,6 +174,12 @@ def write_mat_fs_and_units(rec: Record, path: Path) -> Path:
     return path
 
 
+def write_mat_wrong_case(rec: Record, path: Path) -> Path:
+    """U, Y and FS: the canonical names in capitals."""
+    scipy.io.savemat(path, {"U": rec.u, "Y": rec.y, "FS": rec.fs})
+    return path
+
+
 def write_h5_with_unit_attributes(rec: Record, path: Path) -> Path:
     write_h5(rec, path)
     with h5py.File(path, "r+") as f:
@@ -268,6 +274,9 @@ LAYOUTS = {
     "h5-group-chosen": Layout(
         lambda d: write_h5_in_groups(make_record(), d / "two.h5", ("run1", "run2")),
         {"group": "run2", "periods": 4}, {"fs": 1000.0}),
+    "mat-names-in-another-case-hinted": Layout(
+        lambda d: write_mat_wrong_case(make_record(), d / "case.mat"), {}, status=422,
+        says=("lacks variables ['u', 'y']", "names are case-sensitive", "fs to fs")),
     "units-given-with-the-file": Layout(
         lambda d: write_npz(make_record(), d / "rec.npz"), {"units": {"force": "V"}},
         {"units": {"force": "V", "NC2w_Z": None, "NC2b_Z": None}}),
