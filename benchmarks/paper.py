@@ -487,7 +487,8 @@ def coefficient_summary(run: Run, truth_mu: float) -> dict:
 def stabilisation_figure(run: Run, name: str, title: str) -> str:
     png = plot_stabilisation(run.result.stabilisation, frf=_frf_background(run),
                              singular_values=run.result.singular_values[:60],
-                             order=run.result.order, title=title)
+                             order=run.result.order, title=title,
+                             frf_unit=run.result.units.frf)
     return _save(name, png)
 
 

@@ -83,6 +83,7 @@ def plot_stabilisation(
     singular_values: np.ndarray | None = None,
     order: int | None = None,
     title: str = "Stabilisation diagram",
+    frf_unit: str = "output unit/input unit",
 ) -> bytes:
     """Stabilisation diagram: poles over frequency and model order (paper Figure 5).
 
@@ -103,6 +104,8 @@ def plot_stabilisation(
         Order to mark; default ``diagram.auto_order``.
     title : str
         Figure title.
+    frf_unit : str
+        Unit of the background FRF magnitude (:attr:`fnsi.units.ModelUnits.frf`).
 
     Returns
     -------
@@ -119,7 +122,7 @@ def plot_stabilisation(
         frequencies, magnitude = (np.asarray(a, dtype=float) for a in frf)
         background = ax.twinx()
         background.semilogy(frequencies, magnitude, color="0.75", lw=1.0, zorder=0)
-        background.set_ylabel("sum of FRF magnitudes")
+        background.set_ylabel(f"sum of FRF magnitudes [{frf_unit}]")
         ax.set_zorder(background.get_zorder() + 1)
         ax.patch.set_visible(False)
     for cls, (marker, colour, size, label) in _POLE_STYLE.items():

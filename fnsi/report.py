@@ -193,7 +193,7 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
         background = None if frf is None else (frf[0], np.abs(frf[1]).sum(axis=(1, 2)))
         out["stabilisation.png"] = plots.plot_stabilisation(
             result.stabilisation, frf=background, singular_values=result.singular_values,
-            order=result.order)
+            order=result.order, frf_unit=result.units.frf)
     known = [c for c in result.coefficients if c.identifiable]
     if known:
         trues = [_true_element(truth, model.elements[c.element]) for c in known]

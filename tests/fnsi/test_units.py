@@ -106,6 +106,7 @@ def _labels(figure) -> list[str]:
 
 EXPECTED = {  # figure -> labels it must carry, for input unit {f} and output unit {y}
     "frf.png": ["|H| [{y}/{f}]"],
+    "stabilisation.png": ["sum of FRF magnitudes [{y}/{f}]"],
     "coefficients.png": ["Re mu_j [{f}/{y}^3]", "Im mu_j [{f}/{y}^3]"],
     "stiffness.png": ["Relative displacement [{y}]", "Restoring force [{f}]"],
     "errors.png": ["Amplitude [{y}]"],
