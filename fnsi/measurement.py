@@ -273,14 +273,13 @@ class Measurement:
             Periods per realisation record.
         quantity : str
             "displacement", "velocity" or "acceleration".
-        input_units, output_units : sequence of str, optional
-            One unit per channel; default not given.
+        input_units, output_units : sequence of str or str, optional
+            One unit per channel, or one for all; default not given.
         """
         u3, y3 = _as_record(u, "u"), _as_record(y, "y")
         return cls(u3, y3, float(fs), _names(input_names, u3.shape[2], "u", "input_names"),
                    _names(output_names, y3.shape[2], "y", "output_names"), periods, quantity,
-                   _units(input_units, u3.shape[2], "input_units"),
-                   _units(output_units, y3.shape[2], "output_units"))
+                   input_units, output_units)  # one per channel after __post_init__
 
     # -- properties ------------------------------------------------------------------------
     @property

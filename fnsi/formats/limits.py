@@ -109,8 +109,8 @@ def channels_of(shape: Sequence[int]) -> int:
 def looks_transposed(shape: Sequence[int]) -> bool:
     """A 2-D (samples, channels) or 3-D (realisations, samples, channels) record with fewer
     samples than channels: a periodic record needs many samples per channel, so the
-    channels were stored in rows."""
-    return len(shape) >= 2 and int(shape[-2]) < int(shape[-1])
+    channels were stored in rows (an empty record is refused as empty, not here)."""
+    return len(shape) >= 2 and 0 < int(shape[-2]) < int(shape[-1])
 
 
 NUMERIC_KINDS = "biuf"
