@@ -19,7 +19,7 @@ from fnsi.distortion import analyse_distortion
 from fnsi.identification import identify
 from fnsi.nonlinear import NonlinearElement
 from fnsi.report import identification_report
-from fnsi.smallsat import FORCE_UNIT, OUTPUT_UNITS
+from fnsi.smallsat import FORCE_UNIT, OUTPUT_UNITS, simulate_preset
 from fnsi.study import Study
 from fnsi.units import ModelUnits
 from tests.fnsi.test_diagnosis import NAMES, SETTINGS, chain, measure
@@ -59,6 +59,15 @@ def test_smallsat_presets_declare_mm_and_units_of_20_newtons():
     assert (units.frf, units.curve("displacement")) == ("mm/(20 N)", ("mm", "20 N"))
     assert units.coefficient(NonlinearElement("clearance", "x", None, gap=1.5)) == "(20 N)/mm"
     assert OUTPUT_UNITS["acceleration"] == "mm/s^2"
+
+
+@pytest.mark.parametrize("quantity, unit, frf", [("displacement", "mm", "mm/(20 N)"),
+                                                  ("velocity", "mm/s", "(mm/s)/(20 N)")])
+def test_simulated_smallsat_records_carry_the_presets_units(quantity, unit, frf):
+    m, _ = simulate_preset("single", periods=3, samples_per_period=2500,
+                           outputs=("NC2w_Z", "NC2b_Z"), quantity=quantity)
+    assert (m.input_units, m.output_units) == (("20 N",), (unit, unit))
+    assert (m.units.length, m.units.frf) == ("mm", frf)
 
 
 def _labelled(input_unit: str, output_unit: str):

@@ -11,7 +11,6 @@ validation error fall.
 from __future__ import annotations
 
 import dataclasses
-
 import io
 import json
 import threading
