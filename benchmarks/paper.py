@@ -79,8 +79,8 @@ from fnsi.smallsat import (
     AXIAL_ADDED,
     AXIAL_GAP,
     BRACKET_TIP,
-    FORCE_UNIT_N,
-    LENGTH_UNIT_MM,
+    FORCE_UNIT,
+    LENGTH_UNIT,
     TABLE_3,
     TABLE_8,
     simulate_preset,
@@ -91,6 +91,7 @@ from fnsi.spectra import band_lines, kept_record, output_spectra, period_mean
 from fnsi.stabilisation import macx_matrix, modal_contributions
 from fnsi.stiffness import StiffnessCurve, curve_error_percent, stiffness_curve
 from fnsi.subspace import band_warp, stacked_powers, warp_lines
+from fnsi.units import per
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / "cache"
@@ -106,7 +107,7 @@ BAND = (5.0, 50.0)
 DISCARD = 2
 #: Axis units of the SmallSat curves: the model's own (fnsi.smallsat: length unit 1 mm,
 #: force unit 20 N).
-MODEL_UNITS = (f"{LENGTH_UNIT_MM:g} mm", f"{FORCE_UNIT_N:g} N")
+MODEL_UNITS = (LENGTH_UNIT, FORCE_UNIT)
 NC2 = ("NC2w_Z", "NC2b_Z")
 THREE = ("NC2w_Z", "NC2b_Z", "W_Z")
 #: Force and output at the driving point of the single test.
@@ -486,7 +487,8 @@ def coefficient_summary(run: Run, truth_mu: float) -> dict:
 def stabilisation_figure(run: Run, name: str, title: str) -> str:
     png = plot_stabilisation(run.result.stabilisation, frf=_frf_background(run),
                              singular_values=run.result.singular_values[:60],
-                             order=run.result.order, title=title)
+                             order=run.result.order, title=title,
+                             frf_unit=run.result.units.frf)
     return _save(name, png)
 
 
@@ -626,7 +628,7 @@ def single_workload(name: str, measurement: Measurement, truth: Truth, paper_mod
                              f"{figures['stabilisation_paper']})"),
         _save(figures["coefficient"], plot_coefficients(
             c.frequencies, c.values[:, None], [c.name], truth=[AXIAL_ADDED],
-            unit="force unit / length unit",
+            unit=per(FORCE_UNIT, LENGTH_UNIT),
             title=f"{name}: NC2-Z coefficient mu(omega) "
                   f"(paper Fig. {figures['coefficient_paper']})")),
     ]

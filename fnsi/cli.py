@@ -43,10 +43,23 @@ def _read(path: str, args: argparse.Namespace):
     """The measurement in ``path``, any format, read as the service reads uploads."""
     from fnsi.formats import ReadOptions, format_of, read_measurement
 
-    options = ReadOptions(fs=args.fs, inputs=_channels(args.inputs), periods=args.periods,
-                          quantity=args.quantity)
+    options = ReadOptions(fs=args.fs, inputs=_channels(args.inputs),
+                          outputs=_channels(getattr(args, "outputs", None)),
+                          periods=args.periods, quantity=args.quantity,
+                          units=_units(args.units), group=args.group)
     measurement, _ = read_measurement(Path(path), format_of(path, args.format), options)
     return measurement
+
+
+def _units(text: str | None) -> dict[str, str] | None:
+    """``name=unit,name=unit`` as a mapping."""
+    if not text:
+        return None
+    pairs = [item.split("=", 1) for item in text.split(",") if item.strip()]
+    if any(len(pair) != 2 for pair in pairs):
+        raise ValueError(f"--units takes name=unit pairs separated by commas, e.g. "
+                         f"force=N,x1=mm; got {text!r}")
+    return {name.strip(): unit.strip() for name, unit in pairs}
 
 
 def _elements(args: argparse.Namespace) -> tuple:
@@ -82,6 +95,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_info(args: argparse.Namespace) -> int:
     m = _read(args.dataset, args)
     print(json.dumps({"inputs": list(m.input_names), "outputs": list(m.output_names),
+                      "input_units": list(m.input_units), "output_units": list(m.output_units),
                       "fs": m.fs, "quantity": m.quantity, "realisations": m.n_realisations,
                       "samples": m.n_samples, "periods": m.periods,
                       "period_length": m.period_length}, indent=2))
@@ -137,7 +151,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     for mode in report.document["modes"]:
         print(f"  {mode['frequency_hz']:9.4f} Hz  damping {100 * mode['damping_ratio']:6.3f} %")
     for c in report.document["coefficients"]:
-        quality = (f"mean Re {c['mean_real']:.6g}, log10(Re/Im) {c['log10_real_imag']:.2f}"
+        quality = (f"mean Re {c['mean_real']:.6g} {c['unit']}, log10(Re/Im) "
+                   f"{c['log10_real_imag']:.2f}"
                    if c.get("mean_real") is not None else c["reason"])
         print(f"  {c['name']}: {quality}")
     for separation in result.separability:
@@ -171,6 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
     info = commands.add_parser("info", help="summarise a dataset (npz, csv, mat, h5, uff)")
     info.add_argument("dataset")
     info.add_argument("--inputs", help="comma-separated input channels (a CSV needs them)")
+    info.add_argument("--outputs", help="comma-separated output channels (default: all; a "
+                      "UFF file mixing quantities needs those of one)")
     _add_read_options(info)
     info.set_defaults(run=_cmd_info)
 
@@ -246,6 +263,11 @@ def _add_read_options(parser: argparse.ArgumentParser) -> None:
                         "detected)")
     parser.add_argument("--quantity", help="displacement, velocity or acceleration: what the "
                         "outputs measure (default: the file's)")
+    parser.add_argument("--units", help="channel units overriding the file's, e.g. "
+                        "force=N,x1=mm (default: the file's; labels say 'input unit' and "
+                        "'output unit' where none is given)")
+    parser.add_argument("--group", help="HDF5 / MATLAB v7.3: the group holding u and y "
+                        "(default: the root, or the one group holding them)")
 
 
 def _add_identification_options(parser: argparse.ArgumentParser) -> None:

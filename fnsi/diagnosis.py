@@ -49,6 +49,7 @@ from scipy.optimize import minimize, minimize_scalar
 from fnsi.errors import json_float
 from fnsi.nonlinear import NonlinearElement
 from fnsi.screening import ScreeningProblem
+from fnsi.units import ModelUnits
 
 if TYPE_CHECKING:
     from fnsi.study import Evaluation, Study
@@ -335,6 +336,8 @@ class Diagnosis:
         Wall time of each stage [s].
     notes : tuple of str
         What could not be done and why (e.g. a curve the data cannot support).
+    units : ModelUnits
+        Units of the study's channels: curves and screening shapes are in them.
     """
 
     revision: int
@@ -347,6 +350,7 @@ class Diagnosis:
     summary: str
     timings: dict[str, float]
     notes: tuple[str, ...] = ()
+    units: ModelUnits = field(default_factory=lambda: ModelUnits("", "", "displacement"))
 
     @property
     def found(self) -> bool:
@@ -366,7 +370,8 @@ class Diagnosis:
             "proposals": [{"effect": p.effect.value, **p.location.to_json(),
                            "element": p.element.to_json(), "reduction": p.reduction}
                           for p in self.proposals],
-            "stiffness_curves": [c.to_json() for c in self.curves],
+            "units": self.units.to_json(),
+            "stiffness_curves": [c.to_json(self.units) for c in self.curves],
             "timings": dict(self.timings),
             "notes": list(self.notes),
         }
@@ -724,40 +729,41 @@ def _number(value: float) -> str:
     return f"{value:.3g}"
 
 
-def _kind_words(proposal: Proposal, element: NonlinearElement) -> str:
-    """Physical description of an element with its identified numbers."""
-    where = proposal.location.phrase
+def _kind_words(proposal: Proposal, element: NonlinearElement, units: ModelUnits) -> str:
+    """Physical description of an element with its identified numbers, in ``units``."""
+    where, length, unit = proposal.location.phrase, units.length, units.coefficient(element)
     mu = element.coefficients[0] if element.coefficients else None
-    size = "" if mu is None else f" ({_number(abs(mu))} per unit of the basis)"
+    size = "" if mu is None else f" ({_number(abs(mu))} {unit})"
     if proposal.effect is Effect.CLEARANCE:
         gn, gp = element.gaps
-        added = "" if mu is None else f", adding stiffness {_number(mu)} beyond contact"
+        added = "" if mu is None else f", adding stiffness {_number(mu)} {unit} beyond contact"
         if math.isinf(gn) or math.isinf(gp):
             side, gap = ("positive", gp) if math.isinf(gn) else ("negative", gn)
             sign = "+" if side == "positive" else "-"
-            return (f"a one-sided stop {where} at {sign}{_number(gap)} (no contact on the "
-                    f"other side within the measured motion){added}")
+            return (f"a one-sided stop {where} at {sign}{_number(gap)} {length} (no contact "
+                    f"on the other side within the measured motion){added}")
         if math.isclose(gn, gp):
-            return f"a clearance of about ±{_number(gp)} {where}{added}"
+            return f"a clearance of about ±{_number(gp)} {length} {where}{added}"
         return (f"an asymmetric clearance {where}, contact at -{_number(gn)} and "
-                f"+{_number(gp)}{added}")
+                f"+{_number(gp)} {length}{added}")
     if proposal.effect is Effect.CUBIC_STIFFNESS:
         trend = "" if mu is None else ("hardening " if mu > 0 else "softening ")
         return f"a {trend}cubic spring {where}" + ("" if mu is None else
-                                                   f" (force {_number(mu)} x^3)")
+                                                   f" (force {_number(mu)} {unit} x^3)")
     if proposal.effect is Effect.QUADRATIC_STIFFNESS:
         stiffer = "" if mu is None else (
             ", stiffer for positive displacement" if mu > 0 else
             ", stiffer for negative displacement")
         return f"an asymmetric (quadratic) stiffness {where}{size}{stiffer}"
     if proposal.effect is Effect.COULOMB_FRICTION:
-        force = "" if mu is None else f" with a sliding force of about {_number(abs(mu))}"
+        force = ("" if mu is None else
+                 f" with a sliding force of about {_number(abs(mu))} {units.force}")
         return f"dry (Coulomb) friction {where}{force}"
     return f"quadratic damping {where}" + ("" if mu is None else
-                                           f" (force {_number(mu)} v|v|)")
+                                           f" (force {_number(mu)} {unit} v|v|)")
 
 
-def _shape_words(proposal: Proposal, score: LocationScore | None) -> str:
+def _shape_words(proposal: Proposal, score: LocationScore | None, length: str) -> str:
     """What the nonparametric spline curve shows at the location."""
     if score is None:
         return ""
@@ -768,7 +774,7 @@ def _shape_words(proposal: Proposal, score: LocationScore | None) -> str:
                 zone = f"±{_number(0.5 * (gn + gp))}"
             else:
                 zone = f"-{_number(gn)} .. +{_number(gp)}"
-            return f"; the spline shape is flat inside {zone} and steep outside"
+            return f"; the spline shape is flat inside {zone} {length} and steep outside"
         return ""
     if proposal.effect in (Effect.COULOMB_FRICTION, Effect.QUADRATIC_DAMPING):
         return "; the force follows the relative velocity, not the displacement"
@@ -779,10 +785,10 @@ def _shape_words(proposal: Proposal, score: LocationScore | None) -> str:
 
 def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore | None,
              before: float, after: float, floor: float, beats: bool,
-             concern: str | None) -> str:
-    """Sentence for one element candidate."""
+             concern: str | None, units: ModelUnits) -> str:
+    """Sentence for one element candidate, numbers in ``units``."""
     if not math.isfinite(after):
-        return (f"{_kind_words(proposal, element)}: the model with it could not be "
+        return (f"{_kind_words(proposal, element, units)}: the model with it could not be "
                 f"simulated on the validation input")
     effect = (f"adding it lowers the validation error from {before:.3g} % to {after:.3g} %"
               if after < before < math.inf else
@@ -793,8 +799,8 @@ def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore
     verdict = "" if beats else "; that is not beyond the noise floor"
     doubt = "" if concern is None else (f"; but {concern}, so something else acts "
                                         f"{proposal.location.phrase}")
-    return (f"{_kind_words(proposal, element)}: {effect}{floor_words}"
-            f"{_shape_words(proposal, score)}{verdict}{doubt}")
+    return (f"{_kind_words(proposal, element, units)}: {effect}{floor_words}"
+            f"{_shape_words(proposal, score, units.length)}{verdict}{doubt}")
 
 
 def _explain_mode(evaluation: Evaluation, previous: Sequence[float], order: int,
@@ -868,7 +874,7 @@ def _validate(study: Study, revision: int, proposal: Proposal, before: float,
         beats_noise_floor=beats, screening_reduction=proposal.reduction,
         log10_real_imag=log_ratio, flatness_percent=flatness,
         explanation=_explain(proposal, element, score, before, after, floor, beats,
-                             concern),
+                             concern, study.units),
         failure=evaluation.failure, concern=concern,
     )
 
@@ -979,4 +985,4 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     report(1.0, "diagnosis done")
     return Diagnosis(index, before, floor, tuple(candidates), scores, tuple(proposals),
                      tuple(curves), _summary(candidates, before, floor), timings,
-                     tuple(notes))
+                     tuple(notes), study.units)

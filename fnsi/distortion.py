@@ -122,6 +122,8 @@ class DistortionAnalysis:
     realisations, periods : int
         R and the periods kept.
     output_names : tuple of str
+    unit : str
+        Unit of the outputs, which every level is referred to (:mod:`fnsi.units`).
     """
 
     frequencies: np.ndarray
@@ -136,6 +138,7 @@ class DistortionAnalysis:
     realisations: int
     periods: int
     output_names: tuple[str, ...]
+    unit: str = "output unit"
 
     @property
     def verdict(self) -> str:
@@ -151,7 +154,7 @@ class DistortionAnalysis:
                     "p_value": float(f"{g.p_value:.3g}") if finite else None,
                     "above_noise": g.above_noise}
 
-        return {"band_hz": list(self.band), "odd_design": self.odd_design,
+        return {"band_hz": list(self.band), "odd_design": self.odd_design, "unit": self.unit,
                 "realisations": self.realisations, "periods": self.periods,
                 "channels": [{"name": c.name, "excited": group(c.excited),
                               "odd": group(c.odd), "even": group(c.even),
@@ -288,7 +291,8 @@ def _analysis(measurement: Measurement, U: np.ndarray, Y: np.ndarray, driven: np
         frequencies=frequencies, excited=driven, band=(float(low), float(high)),
         odd_design=odd_design, output=np.sqrt(np.mean(np.abs(Ybar) ** 2, axis=0)),
         noise=np.sqrt(noise_var.mean(axis=0)), distortion=distortion, bla=bla,
-        channels=channels, realisations=R, periods=P, output_names=measurement.output_names)
+        channels=channels, realisations=R, periods=P, output_names=measurement.output_names,
+        unit=measurement.units.output)
 
 
 def _bla(Ubar: np.ndarray, Ybar: np.ndarray, noise_var: np.ndarray, driven: np.ndarray):

@@ -72,6 +72,7 @@ from fnsi.subspace import (
     input_matrices,
     memory_estimate,
 )
+from fnsi.units import ModelUnits
 
 Progress = Callable[[float, str], None]
 
@@ -294,6 +295,9 @@ class IdentificationResult:
         What makes the result unusable in part, in words, with what to change: a model
         whose linear part is unstable (it cannot be simulated; the automatic order
         returns one only when no order of the diagram is stable). Empty when all is well.
+    units : ModelUnits
+        Units of the data identified from (:mod:`fnsi.units`): FRF, coefficients and
+        stiffness curves are in the units they derive; placeholders when not given.
     """
 
     model: StateSpaceModel
@@ -308,9 +312,16 @@ class IdentificationResult:
     refinement: Refinement | None = None
     separability: tuple[Separability, ...] = ()
     warnings: tuple[str, ...] = ()
+    units: ModelUnits = field(default_factory=lambda: ModelUnits("", "", "displacement"))
+
+    def coefficient_unit(self, coefficient: Coefficient) -> str:
+        """Unit of a coefficient: force per unit of its basis function (Eq. 1-2)."""
+        return self.units.coefficient(self.model.elements[coefficient.element])
 
     def to_json(self) -> dict:
-        """JSON-ready result (complex shapes as [re, im] pairs)."""
+        """JSON-ready result (complex shapes as [re, im] pairs); coefficients carry their
+        ``unit``, stiffness curves their ``x_unit`` and ``force_unit``, ``units`` those of
+        the data (input, output, displacement, FRF)."""
         m = self.modal
         return {
             "warnings": list(self.warnings),
@@ -323,8 +334,10 @@ class IdentificationResult:
                                                   strict=True))
             ],
             "output_names": list(m.output_names),
-            "coefficients": [c.to_json() for c in self.coefficients],
-            "stiffness": [c.to_json() for c in self.stiffness],
+            "units": self.units.to_json(),
+            "coefficients": [c.to_json() | {"unit": self.coefficient_unit(c)}
+                             for c in self.coefficients],
+            "stiffness": [c.to_json(self.units) for c in self.stiffness],
             "stabilisation": None if self.stabilisation is None else self.stabilisation.to_json(),
             "singular_values": self.singular_values.tolist(),
             "timings_s": dict(self.timings),
@@ -629,7 +642,7 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     result = dataclasses.replace(
         _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
                   clock.timings), separability=separation,
-        warnings=notes + _instability(model, diagram))
+        warnings=notes + _instability(model, diagram), units=data.units)
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
     if not settings.refine:

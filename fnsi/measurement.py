@@ -16,12 +16,15 @@ from typing import IO, Literal, get_args
 
 import numpy as np
 
+from fnsi.units import NOT_GIVEN, ModelUnits
+
 Quantity = Literal["displacement", "velocity", "acceleration"]
 QUANTITIES: tuple[str, ...] = get_args(Quantity)
 
 FileLike = str | Path | IO
 
-NPZ_VARIABLES = ("u", "y", "fs", "input_names", "output_names", "periods", "quantity")
+NPZ_VARIABLES = ("u", "y", "fs", "input_names", "output_names", "periods", "quantity",
+                 "input_units", "output_units")
 """The arrays of the canonical NPZ dataset (docs/design.md section 6)."""
 
 NOT_A_ZIP = ("not an NPZ (zip) file: save the arrays with numpy.savez or "
@@ -56,6 +59,19 @@ def _names(names, count: int, prefix: str, what: str) -> tuple[str, ...]:
     if len(set(result)) != len(result):
         raise ValueError(f"{what} must be unique; got {list(result)}")
     return result
+
+
+def _units(units, count: int, what: str) -> tuple[str, ...]:
+    """One unit per channel (empty string: not given); a single unit applies to every
+    channel; none given by default."""
+    given = () if units is None else tuple(
+        str(u).strip() for u in np.atleast_1d(np.asarray(units, dtype=str)))
+    if len(given) in (0, 1):
+        return (given[0] if given else NOT_GIVEN,) * count
+    if len(given) != count:
+        raise ValueError(f"{what} has {len(given)} units for {count} channels; give one per "
+                         "channel (an empty string for a unit not known), or one for all")
+    return given
 
 
 def check_channels(chosen, valid: tuple[str, ...], kind: str) -> None:
@@ -163,9 +179,9 @@ class Measurement:
     Attributes
     ----------
     u : ndarray, shape (realisations, samples, m)
-        Input forces [N].
+        Input forces [input unit].
     y : ndarray, shape (realisations, samples, l)
-        Outputs in ``quantity`` units ([m], [m/s] or [m/s^2]).
+        Outputs [output unit], measuring ``quantity``.
     fs : float
         Sampling rate [Hz].
     input_names, output_names : tuple of str
@@ -175,6 +191,11 @@ class Measurement:
         Number of excitation periods in each realisation record; divides ``samples``.
     quantity : {"displacement", "velocity", "acceleration"}
         What ``y`` measures.
+    input_units, output_units : tuple of str
+        Unit of each channel as free text ("N", "mm", "V"); an empty string when not
+        given (labels then say "input unit", "output unit": :mod:`fnsi.units`). Given as
+        an empty tuple (none given) or a single unit, they are one per channel after
+        construction.
 
     Examples
     --------
@@ -191,6 +212,8 @@ class Measurement:
     output_names: tuple[str, ...]
     periods: int = 1
     quantity: str = "displacement"
+    input_units: tuple[str, ...] = ()
+    output_units: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         u, y = self.u, self.y
@@ -227,10 +250,15 @@ class Measurement:
                 raise ValueError(f"{what} must be unique; got {list(names)}")
         object.__setattr__(self, "periods", int(self.periods))
         object.__setattr__(self, "fs", float(self.fs))
+        object.__setattr__(self, "input_units", _units(self.input_units, u.shape[2],
+                                                       "input_units"))
+        object.__setattr__(self, "output_units", _units(self.output_units, y.shape[2],
+                                                        "output_units"))
 
     @classmethod
     def from_arrays(cls, u, y, fs: float, *, input_names=None, output_names=None,
-                    periods: int = 1, quantity: str = "displacement") -> Measurement:
+                    periods: int = 1, quantity: str = "displacement", input_units=None,
+                    output_units=None) -> Measurement:
         """Build a measurement from 1-D, 2-D or 3-D arrays (see class docstring for axes).
 
         Parameters
@@ -245,10 +273,13 @@ class Measurement:
             Periods per realisation record.
         quantity : str
             "displacement", "velocity" or "acceleration".
+        input_units, output_units : sequence of str or str, optional
+            One unit per channel, or one for all; default not given.
         """
         u3, y3 = _as_record(u, "u"), _as_record(y, "y")
         return cls(u3, y3, float(fs), _names(input_names, u3.shape[2], "u", "input_names"),
-                   _names(output_names, y3.shape[2], "y", "output_names"), periods, quantity)
+                   _names(output_names, y3.shape[2], "y", "output_names"), periods, quantity,
+                   input_units, output_units)  # one per channel after __post_init__
 
     # -- properties ------------------------------------------------------------------------
     @property
@@ -275,6 +306,11 @@ class Measurement:
     def period_length(self) -> int:
         """Samples per period."""
         return self.n_samples // self.periods
+
+    @property
+    def units(self) -> ModelUnits:
+        """Units of what is identified from this record (FRF, coefficients, curves)."""
+        return ModelUnits.of(self.input_units, self.output_units, self.quantity)
 
     @property
     def layout(self) -> Layout:
@@ -304,6 +340,8 @@ class Measurement:
             self.output_names if iy is None else tuple(outputs),
             self.periods,
             self.quantity,
+            self.input_units if iu is None else tuple(self.input_units[k] for k in iu),
+            self.output_units if iy is None else tuple(self.output_units[k] for k in iy),
         )
 
     # -- NPZ -------------------------------------------------------------------------------
@@ -312,7 +350,8 @@ class Measurement:
         """Read the canonical NPZ dataset (docs/design.md section 6), never unpickling.
 
         Arrays ``u`` and ``y`` (2-D samples x channels, 1-D, or 3-D with realisations first),
-        scalar ``fs``; optional ``input_names``, ``output_names``, ``periods``, ``quantity``.
+        scalar ``fs``; optional ``input_names``, ``output_names``, ``periods``, ``quantity``,
+        ``input_units``, ``output_units`` (docs/formats.md).
         Files from elsewhere go through :func:`fnsi.formats.read_measurement`, which checks
         their sizes before decoding.
         """
@@ -341,7 +380,9 @@ class Measurement:
         quantity = str(fields["quantity"]) if "quantity" in fields else "displacement"
         return cls.from_arrays(fields["u"], fields["y"], float(fs), periods=periods.item(),
                                input_names=fields.get("input_names"),
-                               output_names=fields.get("output_names"), quantity=quantity)
+                               output_names=fields.get("output_names"), quantity=quantity,
+                               input_units=fields.get("input_units"),
+                               output_units=fields.get("output_units"))
 
     def to_npz(self, file: FileLike) -> None:
         """Write the canonical NPZ dataset (2-D u, y for a single realisation, else 3-D)."""
@@ -349,7 +390,9 @@ class Measurement:
         np.savez(file, u=self.u[0] if squeeze else self.u, y=self.y[0] if squeeze else self.y,
                  fs=np.float64(self.fs), input_names=np.array(self.input_names, dtype=str),
                  output_names=np.array(self.output_names, dtype=str),
-                 periods=np.int64(self.periods), quantity=np.str_(self.quantity))
+                 periods=np.int64(self.periods), quantity=np.str_(self.quantity),
+                 input_units=np.array(self.input_units, dtype=str),
+                 output_units=np.array(self.output_units, dtype=str))
 
     # -- CSV -------------------------------------------------------------------------------
     @classmethod

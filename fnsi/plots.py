@@ -23,6 +23,7 @@ from fnsi.errors import ModelErrors
 from fnsi.nonlinear import NonlinearElement, NonlinearityKind
 from fnsi.stabilisation import PoleClass, StabilisationDiagram
 from fnsi.stiffness import StiffnessCurve
+from fnsi.units import per
 
 DPI = 100
 #: Characters per line of a warning written in a 5-inch stiffness panel (small font).
@@ -92,6 +93,7 @@ def plot_stabilisation(
     singular_values: np.ndarray | None = None,
     order: int | None = None,
     title: str = "Stabilisation diagram",
+    frf_unit: str = "output unit/input unit",
 ) -> bytes:
     """Stabilisation diagram: poles over frequency and model order (paper Figure 5).
 
@@ -115,6 +117,8 @@ def plot_stabilisation(
         Order to mark; default ``diagram.auto_order``.
     title : str
         Figure title.
+    frf_unit : str
+        Unit of the background FRF magnitude (:attr:`fnsi.units.ModelUnits.frf`).
 
     Returns
     -------
@@ -131,7 +135,7 @@ def plot_stabilisation(
         frequencies, magnitude = (np.asarray(a, dtype=float) for a in frf)
         background = ax.twinx()
         background.semilogy(frequencies, magnitude, color="0.75", lw=1.0, zorder=0)
-        background.set_ylabel("sum of FRF magnitudes")
+        background.set_ylabel(f"sum of FRF magnitudes [{frf_unit}]")
         ax.set_zorder(background.get_zorder() + 1)
         ax.patch.set_visible(False)
     for cls, (marker, colour, size, label) in _POLE_STYLE.items():
@@ -184,7 +188,7 @@ def plot_frf(
     output_names: Sequence[str],
     input_names: Sequence[str],
     pairs: Sequence[tuple[str, str]] | None = None,
-    unit: str = "m/N",
+    unit: str = "output unit/input unit",
     title: str = "Measured and model FRF",
 ) -> bytes:
     """Magnitude and phase of measured and model FRFs, one column per (output, input) pair.
@@ -200,7 +204,7 @@ def plot_frf(
     pairs : sequence of (output, input), optional
         Pairs to draw; default the first four.
     unit : str
-        FRF unit for the axis label.
+        FRF unit for the axis label (:attr:`fnsi.units.ModelUnits.frf`).
     title : str
         Figure title.
 
@@ -253,7 +257,7 @@ def plot_coefficients(
     names: Sequence[str],
     *,
     truth: Sequence[float | None] | None = None,
-    unit: str = "N per unit of g_j",
+    unit: str = "input unit per unit of g_j",
     title: str = "Nonlinear coefficients",
 ) -> bytes:
     """Real and imaginary parts of the nonlinear coefficients mu_j(omega) (paper Figure 7).
@@ -317,7 +321,7 @@ def plot_stiffness(
     *,
     truths: Sequence[NonlinearElement | None] | None = None,
     title: str = "Nonlinear restoring forces",
-    units: tuple[str, str] = ("m", "N"),
+    units: tuple[str, str] = ("output unit", "input unit"),
     warnings: Sequence[str | None] | None = None,
 ) -> bytes:
     """Identified restoring-force curves, with the exact ones when known (Figures 10, 12).
@@ -331,7 +335,8 @@ def plot_stiffness(
     title : str
         Figure title (wrapped to the figure width).
     units : (str, str)
-        Length and force units of the data, for the axis labels (velocity: length/s).
+        Length and force units of the data, for the axis labels (velocity: length/s;
+        :meth:`fnsi.units.ModelUnits.curve`).
     warnings : sequence of str or None, optional
         A short warning per curve (None for none), written in red in its panel, whose
         identified curve is then dashed: a curve not to be trusted (e.g. confounded).
@@ -374,8 +379,8 @@ def plot_stiffness(
             ax.plot(knots, element.basis(knots) @ np.asarray(element.coefficients), "o",
                     mfc="none", color="tab:blue", ms=5, label="knots")
         length, force = units
-        unit = f"[{length}/s]" if curve.variable == "velocity" else f"[{length}]"
-        ax.set_xlabel(f"Relative {curve.variable} {unit}")
+        unit = per(length, "s") if curve.variable == "velocity" else length
+        ax.set_xlabel(f"Relative {curve.variable} [{unit}]")
         ax.set_ylabel(f"Restoring force [{force}]")
         ax.set_title(element.name)
         ax.grid(True, alpha=0.3)
@@ -441,7 +446,8 @@ def plot_macx(
 
 
 def plot_errors(errors: ModelErrors, *, outputs: Sequence[str] | None = None,
-                unit: str = "m", title: str = "Model error against the noise floor") -> bytes:
+                unit: str = "output unit",
+                title: str = "Model error against the noise floor") -> bytes:
     """Per-line spectra of measured output, model error and noise, one panel per channel.
 
     Parameters
@@ -488,7 +494,7 @@ def _db(x: np.ndarray) -> np.ndarray:
 
 
 def plot_distortion(analysis: DistortionAnalysis, *, outputs: Sequence[str] | None = None,
-                    unit: str = "m") -> bytes:
+                    unit: str | None = None) -> bytes:
     """Output, noise and nonlinear distortion levels against frequency, one panel per output.
 
     The classic figure of the nonparametric distortion analysis: the output on the
@@ -502,8 +508,8 @@ def plot_distortion(analysis: DistortionAnalysis, *, outputs: Sequence[str] | No
         From :func:`fnsi.distortion.analyse_distortion`.
     outputs : sequence of str, optional
         Channels to draw; default the six with the strongest odd or even distortions.
-    unit : str
-        Output unit for the axis label.
+    unit : str, optional
+        Output unit for the axis label; default ``analysis.unit``.
 
     Returns
     -------
@@ -533,7 +539,7 @@ def plot_distortion(analysis: DistortionAnalysis, *, outputs: Sequence[str] | No
         ax.set_title(f"{name}: odd {_level_text(channel.odd)}, even "
                      f"{_level_text(channel.even)} over the noise", fontsize="medium")
         ax.set_xlabel("Frequency [Hz]")
-        ax.set_ylabel(f"Level [dB re 1 {unit}]")
+        ax.set_ylabel(f"Level [dB re 1 {unit or analysis.unit}]")
         ax.grid(True, alpha=0.3)
     axes[0].legend(fontsize="x-small", loc="lower left")
     for ax in axes[len(names):]:

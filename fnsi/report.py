@@ -145,7 +145,7 @@ def identification_report(result: IdentificationResult, settings: Identification
     kind, errors = list(compared.items())[-1]
     if isinstance(errors, ModelErrors):
         artefacts["errors.png"] = plots.plot_errors(
-            errors, outputs=_worst_outputs(errors), unit="output unit",
+            errors, outputs=_worst_outputs(errors), unit=result.units.output,
             title=f"Model error on the {kind} data against the noise floor")
     artefacts[REPORT_NAME] = identification_page(document, artefacts)
     artefacts |= export_files(document)
@@ -161,7 +161,7 @@ def analysis_artefacts(analysis: DistortionAnalysis) -> dict[str, bytes]:
     """File name to content of a distortion analysis: ``analysis.json``
     (:meth:`DistortionAnalysis.to_json`), ``distortion.png`` and ``report.html``."""
     document = analysis.to_json()
-    figures = {"distortion.png": plots.plot_distortion(analysis, unit="output unit")}
+    figures = {"distortion.png": plots.plot_distortion(analysis)}
     return {"analysis.json": json.dumps(document, indent=2).encode(), **figures,
             REPORT_NAME: analysis_page(document, figures)}
 
@@ -211,23 +211,28 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
         frequencies, H = frf
         fitted = model.frequency_response(frequencies)[:, :, :model.n_inputs]
         out["frf.png"] = plots.plot_frf(frequencies, H, fitted, output_names=model.output_names,
-                                        input_names=model.input_names)
+                                        input_names=model.input_names, unit=result.units.frf)
     if result.stabilisation is not None:
         background = None if frf is None else (frf[0], np.abs(frf[1]).sum(axis=(1, 2)))
         out["stabilisation.png"] = plots.plot_stabilisation(
             result.stabilisation, frf=background, singular_values=result.singular_values,
-            order=result.order)
+            order=result.order, frf_unit=result.units.frf)
     known = [c for c in result.coefficients if c.identifiable]
     if known:
         trues = [_true_element(truth, model.elements[c.element]) for c in known]
+        units = [result.coefficient_unit(c) for c in known]
+        shared = len(set(units)) == 1   # else each curve's legend entry names its unit
         out["coefficients.png"] = plots.plot_coefficients(
             known[0].frequencies, np.column_stack([c.values for c in known]),
-            [c.name for c in known],
+            [c.name if shared else f"{c.name} [{unit}]" for c, unit in zip(known, units,
+                                                                           strict=True)],
             truth=[None if t is None or t.coefficients is None else t.coefficients[c.basis]
-                   for t, c in zip(trues, known, strict=True)])
+                   for t, c in zip(trues, known, strict=True)],
+            unit=units[0] if shared else "unit in the legend")
     if result.stiffness:
         out["stiffness.png"] = plots.plot_stiffness(
             result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness],
+            units=(result.units.length, result.units.force),
             warnings=[_confounding(result, c.element) for c in result.stiffness])
     out["macx.png"] = _macx_figure(result, truth)
     return out

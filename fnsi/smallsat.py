@@ -120,6 +120,13 @@ FORCE_UNIT_N = STIFFNESS_UNIT_N_PER_M * LENGTH_UNIT_MM * 1e-3
 """One model force unit in N (kappa * delta): inputs of simulated measurements."""
 MASS_UNIT_KG = STIFFNESS_UNIT_N_PER_M
 """One model mass unit (force unit s^2 / length unit) in kg."""
+FORCE_UNIT = f"{FORCE_UNIT_N:g} N"
+"""Unit label of the simulated inputs ("20 N"): coefficients read in 20 N per mm^p."""
+LENGTH_UNIT = "mm" if LENGTH_UNIT_MM == 1 else f"{LENGTH_UNIT_MM:g} mm"
+"""Unit label of the simulated displacements."""
+OUTPUT_UNITS = {"displacement": LENGTH_UNIT, "velocity": f"{LENGTH_UNIT}/s",
+                "acceleration": f"{LENGTH_UNIT}/s^2"}
+"""Unit label of the simulated outputs of each quantity."""
 
 WMP_MASS_KG = 8.5
 TELESCOPE_MASS_KG = 140.0
@@ -627,7 +634,8 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
     -------
     Measurement
         Input in model force units (:data:`FORCE_UNIT_N` N), outputs in model length
-        units (:data:`LENGTH_UNIT_MM` mm, per s for velocity, per s^2 for acceleration).
+        units (:data:`LENGTH_UNIT_MM` mm, per s for velocity, per s^2 for acceleration),
+        both declared as the channels' units (:data:`FORCE_UNIT`, :data:`OUTPUT_UNITS`).
     Truth
         Linear modes at the outputs, the eight WEMS elements with their true
         coefficients and the clearance exceedances over the kept periods.
@@ -657,6 +665,8 @@ def simulate_preset(name: Literal["single", "multi"], *, periods: int = 8,
         outputs=simulated, quantity=quantity, noise_percent=noise_percent,
         noise_reference=BRACKET_TIP, discard_periods=preset.discard_periods,
         seed=int(noise_seed), progress=progress)
+    measurement = replace(measurement, input_units=(FORCE_UNIT,),
+                          output_units=(OUTPUT_UNITS[quantity],))
     if simulated == outputs:
         return measurement, truth
     modal = replace(truth.modal, shapes=truth.modal.shapes[:, :-1], output_names=outputs)

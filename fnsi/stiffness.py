@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fnsi.nonlinear import NonlinearElement
+from fnsi.units import ModelUnits
 
 
 @dataclass(frozen=True)
@@ -45,14 +46,18 @@ class StiffnessCurve:
         """``"velocity"`` for velocity-dependent elements, otherwise ``"displacement"``."""
         return "velocity" if self.element.needs_velocity else "displacement"
 
-    def to_json(self) -> dict:
-        """JSON-ready curve: the element (with coefficients), abscissae and forces."""
-        return {
+    def to_json(self, units: ModelUnits | None = None) -> dict:
+        """JSON-ready curve: the element (with coefficients), abscissae and forces, and
+        with ``units`` their units ``x_unit`` and ``force_unit``."""
+        out = {
             "element": self.element.to_json(),
             "variable": self.variable,
             "x": self.x.tolist(),
             "force": self.force.tolist(),
         }
+        if units is not None:
+            out["x_unit"], out["force_unit"] = units.curve(self.variable)
+        return out
 
 
 def _abscissae(element: NonlinearElement, x: tuple[float, float] | np.ndarray | None,

@@ -39,6 +39,7 @@ from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve
+from fnsi.units import ModelUnits
 from fnsi.validation import compare_identified
 
 if TYPE_CHECKING:
@@ -248,7 +249,8 @@ def _modal_json(result: IdentificationResult) -> dict:
 
 def _check_pair(estimation: Measurement, validation: Measurement) -> None:
     """Estimation and validation data must describe the same test set-up."""
-    for name in ("input_names", "output_names", "fs", "quantity"):
+    for name in ("input_names", "output_names", "fs", "quantity", "input_units",
+                 "output_units"):
         a, b = getattr(estimation, name), getattr(validation, name)
         if a != b:
             raise ValueError(f"estimation and validation data differ in {name} ({a!r} vs "
@@ -336,6 +338,11 @@ class Study:
     def output_names(self) -> tuple[str, ...]:
         """Outputs the revisions model."""
         return self.settings.outputs or self.estimation.output_names
+
+    @property
+    def units(self) -> ModelUnits:
+        """Units of the studied channels (:mod:`fnsi.units`)."""
+        return self.estimation.select(self.settings.inputs, self.output_names).units
 
     @classmethod
     def create(cls, estimation: Measurement, validation: Measurement,
@@ -636,7 +643,8 @@ def _requested(item: NonlinearElement | dict) -> NonlinearElement:
 def _measurement_json(m: Measurement) -> dict:
     return {"inputs": list(m.input_names), "outputs": list(m.output_names), "fs": m.fs,
             "periods": m.periods, "samples": m.n_samples, "realisations": m.n_realisations,
-            "quantity": m.quantity}
+            "quantity": m.quantity, "input_units": list(m.input_units),
+            "output_units": list(m.output_units)}
 
 
 def _settings_json(settings: IdentificationSettings) -> dict:

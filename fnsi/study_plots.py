@@ -88,6 +88,7 @@ def plot_comparison(study: Study, revision: int = -1, *, window_s: float | None 
     names = rev.model.output_names
     picks = ([names.index(c) for c in channels] if channels else _worst_channels(rev))
     validation = study.validation.select(outputs=names)
+    unit = study.units.output
     n = validation.period_length
     measured = validation.y[0, -n:]
     simulated = rev.simulated[0]
@@ -103,7 +104,8 @@ def plot_comparison(study: Study, revision: int = -1, *, window_s: float | None 
         ax_t, ax_f = axes[row]
         ax_t.plot(t, measured[:length, k], color="k", lw=0.9, label="measured")
         ax_t.plot(t, simulated[:length, k], color="tab:red", lw=0.9, ls="--", label="model")
-        ax_t.set_ylabel(names[k])
+        ax_t.set_ylabel(f"{names[k]} [{unit}]")
+        ax_f.set_ylabel(f"Amplitude [{unit}]")
         ax_t.set_title(f"{names[k]}: NRMSE {errors.nrmse_percent[k]:.3g} %", fontsize="medium")
         for data, colour, label in ((measured[:, k], "k", "measured"),
                                     (simulated[:, k], "tab:red", "model")):
@@ -146,6 +148,7 @@ def plot_residual_spectra(study: Study, revision: int = -1,
                      f"(floor {errors.noise_floor_percent[k]:.3g} %)", fontsize="medium")
         ax.grid(True, which="both", alpha=0.3)
         ax.set_xlabel("Frequency [Hz]")
+        ax.set_ylabel(f"Amplitude [{study.units.output}]")
     axes[0].legend(fontsize="small", markerscale=3)
     for ax in axes[len(picks):]:
         ax.set_visible(False)
@@ -267,7 +270,7 @@ def plot_screening(diagnosis: Diagnosis, count: int = 4) -> bytes:
         ax.axhline(0, color="0.6", lw=0.6)
         ax.set_title(f"{score.location.label}: explains {100 * score.reduction:.1f} %",
                      fontsize="medium")
-        ax.set_xlabel("Relative displacement")
+        ax.set_xlabel(f"Relative displacement [{diagnosis.units.length}]")
         ax.set_ylabel("Force shape [-]")
         ax.grid(True, alpha=0.3)
     for ax in axes[len(scores):]:
@@ -297,7 +300,7 @@ def diagnosis_figures(diagnosis: Diagnosis) -> dict[str, bytes]:
     if diagnosis.candidates:
         figures["candidates.png"] = plot_candidates(diagnosis)
     if diagnosis.curves:
-        figures["stiffness.png"] = plot_stiffness(list(diagnosis.curves),
-                                                  title="Nonparametric stiffness at the top "
-                                                        "locations")
+        figures["stiffness.png"] = plot_stiffness(
+            list(diagnosis.curves), title="Nonparametric stiffness at the top locations",
+            units=(diagnosis.units.length, diagnosis.units.force))
     return figures

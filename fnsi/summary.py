@@ -109,15 +109,17 @@ def summarize(measurement: Measurement, periods_source: str) -> dict:
         :func:`detect_periods`.
     """
     channels = []
-    for role, x, names in (
-        ("input", measurement.u, measurement.input_names),
-        ("output", measurement.y, measurement.output_names),
+    for role, x, names, units, quantity in (
+        ("input", measurement.u, measurement.input_names, measurement.input_units, "force"),
+        ("output", measurement.y, measurement.output_names, measurement.output_units,
+         measurement.quantity),
     ):
         rms = channel_rms(x)
         snr = snr_db(x, measurement.periods)
         for k, name in enumerate(names):
             value = None if snr is None or not np.isfinite(snr[k]) else round(float(snr[k]), 2)
-            channels.append({"name": name, "role": role, "rms": float(rms[k]), "snr_db": value})
+            channels.append({"name": name, "role": role, "quantity": quantity,
+                             "unit": units[k] or None, "rms": float(rms[k]), "snr_db": value})
     return {
         "fs": measurement.fs,
         "samples": measurement.n_samples,

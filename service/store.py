@@ -197,10 +197,11 @@ def _dataset(row: sqlite3.Row) -> DatasetRecord:
 
 
 def measurement_digest(measurement: Measurement) -> str:
-    """SHA-256 of a measurement's content (arrays, rate, names, periods, quantity)."""
+    """SHA-256 of a measurement's content (arrays, rate, names, periods, quantity, units)."""
     h = hashlib.sha256()
     meta = [measurement.fs, measurement.input_names, measurement.output_names,
-            measurement.periods, measurement.quantity, measurement.u.shape, measurement.y.shape]
+            measurement.periods, measurement.quantity, measurement.u.shape, measurement.y.shape,
+            measurement.input_units, measurement.output_units]
     h.update(json.dumps(meta).encode())
     for array in (measurement.u, measurement.y):  # copies only a non-contiguous selection
         h.update(memoryview(np.ascontiguousarray(array)).cast("B"))

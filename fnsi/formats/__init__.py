@@ -3,15 +3,20 @@
 ``npz``
     The canonical NPZ of ``Measurement.to_npz`` (:mod:`fnsi.formats.npz`).
 ``csv``
-    Header of channel names, one sample per row; ``fs`` and ``inputs`` come with the
-    options (:mod:`fnsi.formats.csv`).
+    Header of channel names, one sample per row, an optional ``time`` column; ``fs``
+    (unless the time column gives it) and ``inputs`` come with the options
+    (:mod:`fnsi.formats.csv`).
 ``mat``
-    MATLAB v5/v7 or v7.3 with the NPZ variables (:mod:`fnsi.formats.mat`).
+    MATLAB v5/v7 or v7.3 with the NPZ variables or the ``iddata`` spellings
+    (:mod:`fnsi.formats.mat`).
 ``h5``
-    HDF5 with root datasets ``u``, ``y``, ``fs`` (:mod:`fnsi.formats.hdf5`).
+    HDF5 with datasets ``u``, ``y``, ``fs`` at the root or in a group
+    (:mod:`fnsi.formats.hdf5`).
 ``uff``
-    Universal File Format dataset 58 / 58b, one record per channel
+    Universal File Format dataset 58 / 58b of time records, one record per channel
     (:mod:`fnsi.formats.uff`).
+
+Every layout, with a runnable example per format: docs/formats.md.
 
 Every reader knows the decoded size and the channel count from the file's headers before
 it decodes any data, refuses them beyond the :class:`DecodeLimits`
@@ -119,8 +124,9 @@ def read_measurement(path: Path, fmt: str, options: ReadOptions | None = None,
         return csv.read(path, options, limits)
     if fmt == "uff":
         return assemble(uff.read_fields(path, options, limits), options)
-    readers = {"npz": npz.read_fields, "mat": mat.read_fields,
-               "h5": lambda p, lim: hdf5.read_fields(p, lim, matlab=False)}
+    readers = {"npz": lambda: npz.read_fields(path, limits),
+               "mat": lambda: mat.read_fields(path, limits, options),
+               "h5": lambda: hdf5.read_fields(path, limits, matlab=False, group=options.group)}
     if fmt not in readers:
         raise ValueError(f"unknown format {fmt!r}; choose one of {list(FORMATS)}")
-    return assemble(readers[fmt](path, limits), options)
+    return assemble(readers[fmt](), options)

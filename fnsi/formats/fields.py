@@ -1,14 +1,17 @@
 """What every reader hands over, and how it becomes a validated measurement.
 
 The NPZ, MAT, HDF5 and UFF readers return the variables of the canonical NPZ
-(``u``, ``y``, ``fs`` and the optional names, ``periods``, ``quantity``); the options
-given with a file complete or override them; the result is one
+(``u``, ``y``, ``fs`` and the optional names, ``periods``, ``quantity``, units); the
+options given with a file complete or override them; the result is one
 :class:`~fnsi.measurement.Measurement` whose values the identification can compute with.
+MATLAB files may use the property names of a System Identification Toolbox ``iddata``
+object instead (:data:`MATLAB_SPELLINGS`). Layouts: docs/formats.md.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,6 +48,12 @@ class ReadOptions:
         Excitation periods per record; without it from the file, else detected.
     quantity : str, optional
         What the outputs measure.
+    units : mapping of str to str, optional
+        Channel name -> unit ("N", "mm", "V"), overriding the file's; a name heading an
+        input and an output sets both.
+    group : str, optional
+        HDF5 / MATLAB v7.3: path of the group holding the record (default: the root, or
+        the one group that holds ``u`` and ``y``).
     """
 
     fs: float | None = None
@@ -52,6 +61,49 @@ class ReadOptions:
     outputs: tuple[str, ...] | None = None
     periods: int | None = None
     quantity: str | None = None
+    units: Mapping[str, str] | None = None
+    group: str | None = None
+
+
+MATLAB_SPELLINGS = {"InputData": "u", "OutputData": "y", "Fs": "fs", "Ts": "fs",
+                    "InputName": "input_names", "OutputName": "output_names",
+                    "InputUnit": "input_units", "OutputUnit": "output_units"}
+"""Variable names a MATLAB user may save (``iddata`` properties, ``Fs`` of the Signal
+Processing Toolbox) -> canonical name; ``Ts`` is the sampling interval [s], fs = 1 / Ts."""
+
+
+def canonical(variables: Mapping[str, Any]) -> dict[str, Any]:
+    """``variables`` under their canonical names (:data:`MATLAB_SPELLINGS`), ``Ts``
+    turned into ``fs``; ValueError when a variable is given under two spellings."""
+    out: dict[str, Any] = {}
+    for name, value in variables.items():
+        key = MATLAB_SPELLINGS.get(name, name)
+        if key in out:
+            spellings = [n for n in variables if MATLAB_SPELLINGS.get(n, n) == key]
+            raise ValueError(f"the file gives {key} twice, as {spellings}; keep one of them")
+        out[key] = _rate_of_interval(value) if name == "Ts" else value
+    return out
+
+
+_CANONICAL_NAMES = ("u", "y", "fs", "periods", "quantity", "input_names", "output_names",
+                    "input_units", "output_units")
+
+
+def spelling_hint(found: list[str]) -> str:
+    """A hint naming variables spelled like a canonical or MATLAB name in another case
+    (``U`` for ``u``, ``FS`` for ``fs``, ``inputdata`` for ``InputData``), else ""."""
+    known = {name.lower(): name for name in (*MATLAB_SPELLINGS, *_CANONICAL_NAMES)}
+    renames = [f"{name} to {known[name.lower()]}" for name in found
+               if name.lower() in known and name != known[name.lower()]]
+    return f"; names are case-sensitive: rename {', '.join(renames[:5])}" if renames else ""
+
+
+def _rate_of_interval(value: Any) -> float:
+    interval = number(value, "Ts", float)
+    if not (np.isfinite(interval) and interval > 0):
+        raise ValueError(f"Ts must be a positive sampling interval [s]; the file holds "
+                         f"{interval}")
+    return 1.0 / interval
 
 
 def scalar(value: Any, name: str) -> Any:
@@ -105,15 +157,35 @@ def assemble(fields: dict[str, Any], options: ReadOptions) -> tuple[Measurement,
     quantity = options.quantity or fields.get("quantity") or "displacement"
     measurement = Measurement.from_arrays(
         fields["u"], fields["y"], fs, input_names=fields.get("input_names"),
-        output_names=fields.get("output_names"), periods=periods or 1, quantity=quantity)
+        output_names=fields.get("output_names"), periods=periods or 1, quantity=quantity,
+        input_units=fields.get("input_units"), output_units=fields.get("output_units"))
     if options.inputs is not None or options.outputs is not None:
         measurement = measurement.select(options.inputs, options.outputs)
-    return finish(measurement, periods)
+    return finish(measurement, periods, options.units)
 
 
-def finish(measurement: Measurement, periods: int | None) -> tuple[Measurement, str]:
-    """Refuse values the identification cannot compute with; detect the periods when
-    neither the file nor the options declared them (``periods`` None)."""
+def with_units(measurement: Measurement, units: Mapping[str, str] | None) -> Measurement:
+    """``measurement`` with the channels named in ``units`` given those units."""
+    if not units:
+        return measurement
+    unknown = sorted(set(units) - set(measurement.input_names) - set(measurement.output_names))
+    if unknown:
+        raise ValueError(f"units name channels {unknown} the record does not hold; channels "
+                         f"are {[*measurement.input_names, *measurement.output_names]}")
+    return dataclasses.replace(
+        measurement,
+        input_units=tuple(units.get(n, u) for n, u in zip(
+            measurement.input_names, measurement.input_units, strict=True)),
+        output_units=tuple(units.get(n, u) for n, u in zip(
+            measurement.output_names, measurement.output_units, strict=True)))
+
+
+def finish(measurement: Measurement, periods: int | None,
+           units: Mapping[str, str] | None = None) -> tuple[Measurement, str]:
+    """Refuse values the identification cannot compute with; set the ``units`` given
+    with the file; detect the periods when neither the file nor the options declared them
+    (``periods`` None)."""
+    measurement = with_units(measurement, units)
     for name, values in (("u", measurement.u), ("y", measurement.y)):
         largest = float(np.max(np.abs(values)))
         if largest > MAX_MAGNITUDE:
@@ -129,7 +201,8 @@ def finish(measurement: Measurement, periods: int | None) -> tuple[Measurement, 
 
 
 def strings(value: Any, name: str) -> list[str] | None:
-    """Channel names from a string array, MATLAB char matrix or cell array of strings."""
+    """Channel names or units from a string array, MATLAB char matrix or cell array of
+    strings."""
     if value is None:
         return None
     flat = np.asarray(value, dtype=object).ravel()

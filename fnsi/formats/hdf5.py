@@ -1,9 +1,13 @@
 """HDF5 files, and MATLAB v7.3 files (HDF5 with arrays transposed).
 
-Root datasets ``u`` (samples x m), ``y`` (samples x l), ``fs`` (dataset or root
-attribute); optional ``input_names``, ``output_names`` (string datasets; MATLAB: cell
-arrays of char), ``periods``, ``quantity`` (datasets or root attributes). Row-major, as
-numpy writes.
+Datasets ``u`` (samples x m), ``y`` (samples x l), ``fs`` (dataset or attribute);
+optional ``input_names``, ``output_names``, ``input_units``, ``output_units`` (string
+datasets; MATLAB: cell arrays of char), ``periods``, ``quantity`` (datasets or
+attributes), and a string attribute ``units`` on ``u`` or ``y`` (one unit, or one per
+column). Row-major, as numpy writes; MATLAB's ``iddata`` spellings are read too
+(:data:`fnsi.formats.fields.MATLAB_SPELLINGS`). They sit at the root, or in the group
+the option ``group`` names; without it, when the root holds no ``u`` and exactly one of
+its groups does, that group is read.
 
 HDF5 can point outside the file: a dataset with *external storage* reads raw files of
 the machine that opens it, an *external link* opens another HDF5 file, a *virtual
@@ -25,16 +29,30 @@ from typing import Any
 import h5py
 import numpy as np
 
-from fnsi.formats.fields import scalar, strings
-from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, channels_of, is_numeric
+from fnsi.formats.fields import MATLAB_SPELLINGS, canonical, scalar, spelling_hint, strings
+from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, is_numeric
 
 _RECORDS = ("u", "y")
 _SCALARS = ("fs", "periods", "quantity")
-_NAMES = ("input_names", "output_names")
+_NAMES = ("input_names", "output_names", "input_units", "output_units")
+_CANONICAL = (*_RECORDS, *_SCALARS, *_NAMES)
+#: Every name looked up: the canonical ones and MATLAB's spellings of them.
+_LOOKED_UP = (*_CANONICAL, *MATLAB_SPELLINGS)
+#: Scalars that may be attributes of the record's group instead of datasets.
+_ATTRIBUTES = (*_SCALARS, "Fs", "Ts")
+_UNITS_OF = {"u": "input_units", "y": "output_units"}
+_MAX_LINKS = 1000  # root links examined for groups holding a record
 
 
-def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool) -> dict[str, Any]:
+def _role(name: str) -> str:
+    return MATLAB_SPELLINGS.get(name, name)
+
+
+def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool,
+                group: str | None = None) -> dict[str, Any]:
     """Variables of an HDF5 (or MATLAB v7.3, ``matlab=True``) file, checked before reading.
+
+    ``group`` is the path of the group holding the record (default: see the module).
 
     Raises
     ------
@@ -46,18 +64,30 @@ def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool) -> dict[str, 
     what = "MATLAB v7.3" if matlab else "HDF5"
     try:
         with h5py.File(path, "r") as f:
-            nodes = {name: _dataset(f, name) for name in (*_RECORDS, *_SCALARS, *_NAMES)}
+            where = _record_group(f, group)
+            nodes = {name: _dataset(where, name) for name in _LOOKED_UP}
+            if where != f:  # rate, names, units shared by the file's groups at its root
+                nodes |= {name: _dataset(f, name) for name, node in nodes.items()
+                          if node is None and _role(name) not in _RECORDS}
             nodes = {name: node for name, node in nodes.items() if node is not None}
-            _check(f, nodes, limits, what, matlab)
+            _check(where, nodes, limits, what, matlab)
             data = {name: _value(f, node, matlab, limits) for name, node in nodes.items()}
-            for name in _SCALARS:
-                if name not in data and name in f.attrs:
-                    data[name] = f.attrs[name]
+            for name in _ATTRIBUTES:
+                holder = next((g for g in (where, f) if name in g.attrs), None)
+                if name not in data and holder is not None:
+                    data[name] = holder.attrs[name]
+            data = canonical(data)
+            for record, units in _UNITS_OF.items():
+                if units not in data and record in nodes:
+                    data[units] = _units_attribute(nodes[record], limits)
             missing = [k for k in _RECORDS if k not in data]
             if missing:
-                raise ValueError(f"{what} file lacks datasets {missing} at its root; it "
-                                 "needs u (samples x m), y (samples x l) and fs (Hz); found "
-                                 f"{list(itertools.islice(f, 50))}{_groups_holding(f, missing)}")
+                raise ValueError(f"{what} file lacks datasets {missing} in {where.name}; it "
+                                 "needs u (samples x m), y (samples x l) and fs (Hz) there; "
+                                 f"{where.name} holds {_members(where)}"
+                                 f"{spelling_hint(_hard_links(where))}; name a group "
+                                 "holding them with the option group (meta {\"group\": "
+                                 "\"run1\"}, fnsi --group run1)")
     except (OSError, TypeError, KeyError, RuntimeError) as err:  # h5py's errors on bad files
         raise ValueError(f"not a readable {what} file: {err}") from None
     quantity = None if data.get("quantity") is None else scalar(data["quantity"], "quantity")
@@ -65,8 +95,7 @@ def read_fields(path: Path, limits: DecodeLimits, *, matlab: bool) -> dict[str, 
             "fs": data.get("fs"), "periods": data.get("periods"),
             "quantity": None if quantity is None else (
                 quantity.decode() if isinstance(quantity, bytes) else str(quantity)).strip(),
-            "input_names": strings(data.get("input_names"), "input_names"),
-            "output_names": strings(data.get("output_names"), "output_names")}
+            **{name: strings(data.get(name), name) for name in _NAMES}}
 
 
 def _dataset(group: h5py.Group, name: str) -> h5py.Dataset | None:
@@ -87,17 +116,57 @@ def _dataset(group: h5py.Group, name: str) -> h5py.Dataset | None:
     return node
 
 
-def _groups_holding(f: h5py.File, names: list[str]) -> str:
-    """A hint naming the groups (one level down, hard links only, among the first 1000
-    root links) that hold ``names``."""
-    groups = [key for key in itertools.islice(f, 1000)
-              if isinstance(f.get(key, getlink=True), h5py.HardLink)
-              and isinstance(f[key], h5py.Group)
-              and all(isinstance(f[key].get(n, getlink=True), h5py.HardLink) for n in names)]
-    if not groups:
-        return ""
-    return (f"; groups {groups[:10]} hold {names}: move one record's datasets to the root, "
-            f"e.g. with h5py f.move('{groups[0]}/{names[0]}', '{names[0]}')")
+def _record_group(f: h5py.File, group: str | None) -> h5py.Group:
+    """The group ``group`` names (each step a hard link), else the root, else the one
+    group below the root that holds ``u`` (or ``InputData``)."""
+    if group is not None:
+        where: h5py.Group = f
+        for step in (s for s in group.split("/") if s):
+            link = where.get(step, getlink=True)
+            if not isinstance(link, h5py.HardLink) or not isinstance(where[step], h5py.Group):
+                raise ValueError(f"the file has no group {group!r} (hard-linked, links are "
+                                 f"not followed); its root holds {_members(f)}")
+            where = where[step]
+        return where
+    if _holds_record(f):
+        return f
+    holding = [key for key in _hard_links(f) if isinstance(f[key], h5py.Group)
+               and _holds_record(f[key])]
+    if len(holding) > 1:
+        raise ValueError(f"groups {holding[:10]} each hold a record (u, y); choose one with "
+                         f"the option group, e.g. meta {{\"group\": \"{holding[0]}\"}} or "
+                         f"fnsi --group {holding[0]}")
+    return f[holding[0]] if holding else f
+
+
+def _hard_links(group: h5py.Group) -> list[str]:
+    """Names of the first :data:`_MAX_LINKS` hard links of ``group`` (others unresolved)."""
+    return [key for key in itertools.islice(group, _MAX_LINKS)
+            if isinstance(group.get(key, getlink=True), h5py.HardLink)]
+
+
+def _holds_record(group: h5py.Group) -> bool:
+    return any(isinstance(group.get(name, getlink=True), h5py.HardLink)
+               for name in ("u", "InputData"))
+
+
+def _members(group: h5py.Group) -> list[str]:
+    """Up to 50 names of ``group``'s members, groups with a trailing slash."""
+    return [f"{key}/" if isinstance(group[key], h5py.Group) else key
+            for key in _hard_links(group)[:50]]
+
+
+def _units_attribute(node: h5py.Dataset, limits: DecodeLimits) -> list[str] | None:
+    """The string attribute ``units`` of a record dataset (one unit for every column, or
+    one per column), its size checked before it is read."""
+    if "units" not in node.attrs:
+        return None
+    attribute = h5py.h5a.open(node.id, b"units")
+    limits.check_bytes(array_bytes(attribute.shape or (), attribute.dtype.itemsize),
+                       f"attribute units of {node.name}")
+    values = np.atleast_1d(node.attrs["units"]).ravel()
+    return strings([v.decode() if isinstance(v, bytes) else v for v in values],
+                   f"the units attribute of {node.name}")
 
 
 def _check_storage(node: h5py.Dataset, name: str) -> None:
@@ -111,26 +180,27 @@ def _check_storage(node: h5py.Dataset, name: str) -> None:
                          f"the HDF5 file); store the data of {name} in the file itself")
 
 
-def _check(f: h5py.File, nodes: dict[str, h5py.Dataset], limits: DecodeLimits, what: str,
+def _check(where: h5py.Group, nodes: dict[str, h5py.Dataset], limits: DecodeLimits, what: str,
            matlab: bool) -> None:
     """Storage, types, channels and decoded size of the datasets used, from metadata."""
     for name, node in nodes.items():
         _check_storage(node, name)
-        if name in _RECORDS and not is_numeric(node.dtype):
+        if _role(name) in _RECORDS and not is_numeric(node.dtype):
             raise ValueError(f"{name} has type {node.dtype}; store {name} as a float array "
                              "(samples x channels)")
     shapes = {name: (node.shape or ())[::-1] if matlab else node.shape or ()
               for name, node in nodes.items()}
-    limits.check_channels(sum(channels_of(shapes[name]) for name in _RECORDS if name in nodes),
-                          f"the {what} file")
-    limits.check_bytes(sum(array_bytes(shapes[name], FLOAT_BYTES if name in _RECORDS
+    limits.check_records({name: shapes[name] for name in nodes if _role(name) in _RECORDS},
+                         f"the {what} file")
+    limits.check_bytes(sum(array_bytes(shapes[name], FLOAT_BYTES if _role(name) in _RECORDS
                                        else node.dtype.itemsize)
                            for name, node in nodes.items()), f"the {what} file")
-    for name in _SCALARS:
-        if name not in nodes and name in f.attrs:
-            attribute = h5py.h5a.open(f.id, name.encode())
-            limits.check_bytes(array_bytes(attribute.shape or (), attribute.dtype.itemsize),
-                               f"attribute {name}")
+    for name in _ATTRIBUTES:
+        for holder in (where, where.file):
+            if name not in nodes and name in holder.attrs:
+                attribute = h5py.h5a.open(holder.id, name.encode())
+                limits.check_bytes(array_bytes(attribute.shape or (),
+                                               attribute.dtype.itemsize), f"attribute {name}")
 
 
 def _value(f: h5py.File, node: h5py.Dataset, matlab: bool, limits: DecodeLimits) -> Any:

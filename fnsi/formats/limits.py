@@ -71,13 +71,28 @@ class DecodeLimits:
                 "fewer channels or fewer realisations", "max_decoded_bytes",
                 self.max_decoded_bytes)
 
-    def check_channels(self, count: int, what: str) -> None:
-        """Refuse a record of ``count`` channels (inputs plus outputs)."""
+    def check_channels(self, count: int, what: str, hint: str = "") -> None:
+        """Refuse a record of ``count`` channels (inputs plus outputs); ``hint`` ends the
+        message (e.g. that the arrays look transposed)."""
         if count > self.max_channels:
             raise TooManyChannelsError(
                 f"{what} has {count} channels, more than the limit of {self.max_channels} "
-                "(max_channels); send only the channels the identification needs",
+                f"(max_channels); send only the channels the identification needs{hint}",
                 "max_channels", self.max_channels)
+
+    def check_records(self, shapes: dict[str, Sequence[int]], what: str) -> None:
+        """Channel count and orientation of the record arrays (``u``, ``y``) from their
+        header shapes: channels stored in rows (fewer samples than channels) are refused
+        as transposed, and named in the message of a channel count beyond the limit."""
+        flipped = [f"{name} has shape {tuple(int(n) for n in shape)}"
+                   for name, shape in shapes.items() if looks_transposed(shape)]
+        hint = (f" ({', '.join(flipped)}: fewer samples than channels, transposed? store "
+                "one sample per row, samples x channels)") if flipped else ""
+        self.check_channels(sum(channels_of(shape) for shape in shapes.values()), what, hint)
+        if flipped:
+            raise ValueError(f"{', '.join(flipped)}: fewer samples than channels, transposed? "
+                             "store one sample per row (samples x channels), e.g. save u.T "
+                             "and y.T; MATLAB iddata-style records are samples x channels too")
 
 
 def array_bytes(shape: Sequence[int], itemsize: int) -> int:
@@ -89,6 +104,13 @@ def channels_of(shape: Sequence[int]) -> int:
     """Channels of a record array laid out (samples,), (samples, channels) or
     (realisations, samples, channels)."""
     return int(shape[-1]) if len(shape) >= 2 else 1
+
+
+def looks_transposed(shape: Sequence[int]) -> bool:
+    """A 2-D (samples, channels) or 3-D (realisations, samples, channels) record with fewer
+    samples than channels: a periodic record needs many samples per channel, so the
+    channels were stored in rows (an empty record is refused as empty, not here)."""
+    return len(shape) >= 2 and 0 < int(shape[-2]) < int(shape[-1])
 
 
 NUMERIC_KINDS = "biuf"

@@ -1,8 +1,12 @@
 """MATLAB files: v5/v7 (read with scipy.io) and v7.3 (HDF5, see :mod:`fnsi.formats.hdf5`).
 
 Variables are those of the canonical NPZ: ``u`` (samples x m), ``y`` (samples x l),
-``fs``; optional ``input_names``, ``output_names`` (char matrix or cell array of char
-vectors), ``periods``, ``quantity``.
+``fs``; optional ``input_names``, ``output_names``, ``input_units``, ``output_units``
+(char matrix or cell array of char vectors), ``periods``, ``quantity``. The ``iddata``
+spellings ``InputData``, ``OutputData``, ``Ts``, ``InputName``, ``OutputName``,
+``InputUnit``, ``OutputUnit`` and ``Fs`` are read as those
+(:data:`fnsi.formats.fields.MATLAB_SPELLINGS`); an ``iddata`` object itself is not (its
+class is MATLAB's own), and the message says which fields to save instead.
 
 A v5 file is a 128-byte header and one data element per variable, each usually
 zlib-compressed. Before scipy decodes anything, this reader walks the elements itself,
@@ -27,8 +31,14 @@ import numpy as np
 import scipy.io
 
 from fnsi.formats import hdf5
-from fnsi.formats.fields import strings
-from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, channels_of
+from fnsi.formats.fields import (
+    MATLAB_SPELLINGS,
+    ReadOptions,
+    canonical,
+    spelling_hint,
+    strings,
+)
+from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes
 
 _FILE_HEADER = 128
 _MI_MATRIX, _MI_COMPRESSED = 14, 15
@@ -41,7 +51,17 @@ _CLASS_NAMES = {_CELL: "cell array", _STRUCT: "struct", _OBJECT: "object", _CHAR
                 _SPARSE: "sparse matrix"}
 _MAX_VARIABLES = 4096  # top-level elements walked; a file of many tiny ones costs time only
 _RECORDS = ("u", "y")
-_USED = ("u", "y", "fs", "periods", "quantity", "input_names", "output_names")
+_USED = ("u", "y", "fs", "periods", "quantity", "input_names", "output_names", "input_units",
+         "output_units")
+_TEXT = ("input_names", "output_names", "input_units", "output_units")
+_IDDATA_HINT = ("; an iddata object cannot be read (its class is MATLAB's own): save its "
+                "fields, e.g. InputData = data.InputData; OutputData = data.OutputData; "
+                "Ts = data.Ts; save('run.mat', 'InputData', 'OutputData', 'Ts')")
+
+
+def _role(name: str) -> str:
+    """The canonical variable a MATLAB variable name stands for (itself if none)."""
+    return MATLAB_SPELLINGS.get(name, name)
 
 
 @dataclass(frozen=True)
@@ -57,8 +77,10 @@ class _Variable:
     compressed: bool
 
 
-def read_fields(path: Path, limits: DecodeLimits) -> dict[str, Any]:
-    """Variables of a MATLAB file after its headers passed the checks.
+def read_fields(path: Path, limits: DecodeLimits,
+                options: ReadOptions | None = None) -> dict[str, Any]:
+    """Variables of a MATLAB file after its headers passed the checks (``options``: the
+    group of a v7.3 file).
 
     Raises
     ------
@@ -68,7 +90,8 @@ def read_fields(path: Path, limits: DecodeLimits) -> dict[str, Any]:
         Decoded size or channels beyond ``limits``.
     """
     if h5py.is_hdf5(path):  # v7.3
-        return hdf5.read_fields(path, limits, matlab=True)
+        return hdf5.read_fields(path, limits, matlab=True,
+                                group=None if options is None else options.group)
     with open(path, "rb") as f:
         header = f.read(_FILE_HEADER)
         endian = {b"IM": "<", b"MI": ">"}.get(header[126:128])
@@ -76,27 +99,32 @@ def read_fields(path: Path, limits: DecodeLimits) -> dict[str, Any]:
             raise ValueError("not a readable MATLAB file (no v5 header); save it with "
                              "save(..., '-v7') or '-v7.3'")
         try:
-            variables = [v for v in _walk(f, endian) if v.name in _USED]
+            found = _walk(f, endian)
         except (struct.error, zlib.error, ValueError, UnicodeDecodeError) as err:
             raise ValueError(f"not a readable MATLAB file: {err}") from None
+        variables = [v for v in found if _role(v.name) in _USED]
         _check(variables, limits)
         for variable in variables:
             _check_inflated(f, variable, limits)
         trimmed = header + b"".join(_raw(f, v) for v in variables)
     try:
-        data = scipy.io.loadmat(io.BytesIO(trimmed), squeeze_me=True, chars_as_strings=True)
+        loaded = scipy.io.loadmat(io.BytesIO(trimmed), squeeze_me=True, chars_as_strings=True)
     except Exception as err:  # scipy raises many types on malformed elements
         raise ValueError(f"not a readable MATLAB file: {err}") from None
+    data = canonical({k: v for k, v in loaded.items() if not k.startswith("__")})
     missing = [k for k in _RECORDS if k not in data]
     if missing or "fs" not in data:
+        objects = any(v.mclass == _OBJECT or v.mclass > 15 for v in found)
         raise ValueError(f"MATLAB file lacks variables {missing or ['fs']}; it needs u "
-                         "(samples x m), y (samples x l) and fs (Hz)")
+                         "(samples x m), y (samples x l) and fs (Hz), or the iddata "
+                         "spellings InputData, OutputData and Ts; it holds "
+                         f"{[v.name for v in found][:20]}{_IDDATA_HINT if objects else ''}"
+                         f"{spelling_hint([v.name for v in found])}")
     quantity = data.get("quantity")
     return {"u": np.asarray(data["u"], dtype=float), "y": np.asarray(data["y"], dtype=float),
             "fs": data["fs"], "periods": data.get("periods"),
             "quantity": None if quantity is None else str(quantity).strip(),
-            "input_names": strings(data.get("input_names"), "input_names"),
-            "output_names": strings(data.get("output_names"), "output_names")}
+            **{name: strings(data.get(name), name) for name in _TEXT}}
 
 
 def _walk(f: io.BufferedReader, endian: str) -> list[_Variable]:
@@ -166,17 +194,17 @@ def _variable(head: bytes, offset: int, endian: str, start: int, end: int,
 def _check(variables: list[_Variable], limits: DecodeLimits) -> None:
     """Layout, channels and declared decoded size of the variables used."""
     for v in variables:
-        if v.name in _RECORDS and (v.mclass not in _NUMERIC or v.complex):
+        if _role(v.name) in _RECORDS and (v.mclass not in _NUMERIC or v.complex):
             kind = "complex matrix" if v.complex else _CLASS_NAMES.get(v.mclass, "non-numeric")
             raise ValueError(f"{v.name} is a MATLAB {kind}; save {v.name} as a real numeric "
                              f"matrix (samples x channels), e.g. {v.name} = double("
                              f"cell2mat({v.name})) for a cell array")
-        if v.name.endswith("_names") and v.mclass not in (_CHAR, _CELL):
+        if _role(v.name) in _TEXT and v.mclass not in (_CHAR, _CELL):
             raise ValueError(f"{v.name} is a MATLAB {_CLASS_NAMES.get(v.mclass, 'number')}; "
                              "save it as a cell array of char vectors, e.g. {'force', 'x1'}")
-    records = [v for v in variables if v.name in _RECORDS]
-    limits.check_channels(sum(channels_of(v.dims) for v in records), "the MATLAB file")
-    declared = sum(array_bytes(v.dims, FLOAT_BYTES if v.name in _RECORDS
+    limits.check_records({v.name: v.dims for v in variables if _role(v.name) in _RECORDS},
+                         "the MATLAB file")
+    declared = sum(array_bytes(v.dims, FLOAT_BYTES if _role(v.name) in _RECORDS
                                else _NUMERIC.get(v.mclass, 4)) for v in variables)
     limits.check_bytes(declared, "the MATLAB file")
 

@@ -18,12 +18,12 @@ from typing import Any
 import numpy as np
 from numpy.lib import format as npy
 
-from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, channels_of, is_numeric
+from fnsi.formats.limits import FLOAT_BYTES, DecodeLimits, array_bytes, is_numeric
 from fnsi.measurement import NOT_A_ZIP, NPZ_VARIABLES, Measurement
 
 _RECORDS = ("u", "y")
 _SCALARS = ("fs", "periods")
-_TEXT = ("input_names", "output_names", "quantity")
+_TEXT = ("input_names", "output_names", "quantity", "input_units", "output_units")
 
 
 def read_fields(path: Path, limits: DecodeLimits) -> dict[str, Any]:
@@ -53,7 +53,8 @@ def read_fields(path: Path, limits: DecodeLimits) -> dict[str, Any]:
     return {"u": measurement.u, "y": measurement.y, "fs": measurement.fs,
             "input_names": measurement.input_names, "output_names": measurement.output_names,
             "periods": measurement.periods if "periods" in headers else None,
-            "quantity": measurement.quantity}
+            "quantity": measurement.quantity, "input_units": measurement.input_units,
+            "output_units": measurement.output_units}
 
 
 def _members(archive: zipfile.ZipFile) -> dict[str, str]:
@@ -103,8 +104,8 @@ def _check(headers: dict[str, tuple[tuple[int, ...], np.dtype]], limits: DecodeL
         if name in headers and headers[name][1].kind not in "SU":
             raise ValueError(f"{name} has dtype {headers[name][1]}; store it as a unicode "
                              "string array")
-    channels = sum(channels_of(headers[name][0]) for name in _RECORDS if name in headers)
-    limits.check_channels(channels, "the NPZ file")
+    limits.check_records({name: headers[name][0] for name in _RECORDS if name in headers},
+                         "the NPZ file")
     decoded = sum(array_bytes(shape, FLOAT_BYTES if name in _RECORDS else dtype.itemsize)
                   for name, (shape, dtype) in headers.items())
     limits.check_bytes(decoded, "the NPZ file")

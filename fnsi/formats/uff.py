@@ -1,9 +1,13 @@
 """Universal File Format dataset 58 or 58b, one record per channel (several in one file).
 
-The channel name is record line ``id1`` (else node and direction), the sampling rate
-1 / abscissa increment. Records with ordinate type 13 (excitation force) are inputs
-unless the options name the inputs; the output quantity follows ordinate types 8, 11, 12
-(displacement, velocity, acceleration).
+Only time records are read: function type 1 (time response) or 0 (general), abscissa
+in seconds (abscissa data type 17 or 0); an FRF, spectrum or other function of
+frequency is refused. The channel name is record line ``id1`` (else node and direction),
+the sampling rate 1 / abscissa increment, the unit the ordinate's axis units label. Records
+with ordinate type 13 (excitation force) are inputs unless the options name the inputs;
+the output quantity follows ordinate types 8, 11, 12 (displacement, velocity,
+acceleration), and outputs of different quantities are refused with the channels of
+each, to be read one quantity at a time with the option ``outputs``.
 
 pyuff reads a whole file at once, so the decoded size is bounded from the file's size:
 at worst binary single-precision samples (4 bytes) become a float64 ordinate and a
@@ -12,6 +16,7 @@ float64 abscissa, four times the file.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -25,6 +30,11 @@ from fnsi.formats.limits import DecodeLimits
 _GROWTH = 4  # decoded bytes per file byte, at most (module docstring)
 _QUANTITY = {8: "displacement", 11: "velocity", 12: "acceleration"}
 _FORCE = 13
+_TIME_FUNCTIONS = (0, 1)        # general, time response
+_TIME_ABSCISSAE = (0, 17)       # unknown, time
+_FUNCTIONS = {2: "auto-spectrum", 3: "cross-spectrum", 4: "frequency response function",
+              5: "transmissibility", 6: "coherence", 7: "auto-correlation",
+              8: "cross-correlation", 9: "power spectral density", 12: "spectrum"}
 _DIRECTIONS = {1: "X", 2: "Y", 3: "Z", -1: "-X", -2: "-Y", -3: "-Z"}
 
 
@@ -49,6 +59,7 @@ def read_fields(path: Path, options: ReadOptions, limits: DecodeLimits) -> dict[
         raise ValueError("the UFF file holds no dataset 58/58b (function at nodal DOF) records")
     limits.check_channels(len(records), "the UFF file")
     names = _names(records)
+    _check_time_records(names, records)
     column = dict(zip(names, records, strict=True))
     types = {n: int(r.get("ordinate_spec_data_type", 0)) for n, r in column.items()}
     inputs = list(options.inputs or [n for n in names if types[n] == _FORCE])
@@ -62,11 +73,49 @@ def read_fields(path: Path, options: ReadOptions, limits: DecodeLimits) -> dict[
     unknown = [n for n in (*inputs, *outputs) if n not in column]
     if unknown:
         raise ValueError(f"UFF file has no channel(s) {unknown}; channels are {names}")
-    quantities = {_QUANTITY.get(types[n]) for n in outputs}
+    quantities = _quantity(outputs, types)
     return {"u": np.column_stack([np.real(column[n]["data"]) for n in inputs]),
             "y": np.column_stack([np.real(column[n]["data"]) for n in outputs]),
             "fs": 1.0 / _increment(records), "input_names": inputs, "output_names": outputs,
-            "quantity": quantities.pop() if len(quantities) == 1 else None}
+            "quantity": quantities, "input_units": [_unit(column[n]) for n in inputs],
+            "output_units": [_unit(column[n]) for n in outputs]}
+
+
+def _check_time_records(names: list[str], records: list[dict[str, Any]]) -> None:
+    """Refuse records that are no sampled time history (an FRF, a spectrum)."""
+    for name, record in zip(names, records, strict=True):
+        function = int(record.get("func_type", 0))
+        abscissa = int(record.get("abscissa_spec_data_type", 0))
+        if function not in _TIME_FUNCTIONS or abscissa not in _TIME_ABSCISSAE:
+            what = _FUNCTIONS.get(function, f"function type {function}")
+            axis = "frequency [Hz]" if abscissa == 18 else f"abscissa data type {abscissa}"
+            raise ValueError(
+                f"UFF record {name!r} is a {what} (function type {function}) over "
+                f"{axis}, not a time record: FNSI needs the measured time histories of "
+                "forces and responses (function type 1, abscissa time in s); export the "
+                "time data from the acquisition system instead of the processed functions")
+
+
+def _quantity(outputs: list[str], types: dict[str, int]) -> str | None:
+    """The one quantity the outputs measure (None when their records do not say);
+    ValueError naming the channels of each when they mix quantities."""
+    kinds: dict[str, list[str]] = {}
+    for name in outputs:
+        kinds.setdefault(_QUANTITY.get(types[name], "unknown"), []).append(name)
+    known = sorted(set(kinds) - {"unknown"})
+    if len(known) > 1:
+        groups = "; ".join(f"{q}: {kinds[q][:10]}" for q in known)
+        raise ValueError(f"the UFF outputs mix quantities ({groups}); one identification "
+                         "takes outputs of one quantity: choose them with the option outputs, "
+                         f"e.g. {json.dumps({'outputs': kinds[known[0]][:3]})}, and upload "
+                         "the file once per quantity")
+    return known[0] if known else None
+
+
+def _unit(record: dict[str, Any]) -> str:
+    """The ordinate's unit label of a record ("NONE" and blanks: not given)."""
+    label = str(record.get("ordinate_axis_units_lab", "")).strip()
+    return "" if label.upper() in ("", "NONE") else label
 
 
 def _names(records: list[dict[str, Any]]) -> list[str]:

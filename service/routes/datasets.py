@@ -95,8 +95,9 @@ def create_dataset(
     file: Annotated[UploadFile, File(description="The dataset: .npz (canonical), .csv, .mat "
                                      "(v5 or v7.3), .h5 or .uff (58/58b records).")],
     meta: Annotated[str | None, Form(description="Optional JSON object (UploadMeta): name, "
-                                     "format, fs [Hz], inputs, outputs, periods, quantity. "
-                                     "CSV needs fs and inputs.",
+                                     "format, fs [Hz], inputs, outputs, periods, quantity, "
+                                     "units, group. "
+                                     "CSV needs inputs, and fs unless it has a time column.",
                                      examples=['{"fs": 2500, "inputs": ["force"]}'])] = None,
 ) -> Dataset:
     """Upload a measurement; it is validated and summarised now (channels, RMS, SNR).
@@ -118,7 +119,8 @@ def create_dataset(
         if record is None:
             read = ReadOptions(fs=options.fs, periods=options.periods, quantity=options.quantity,
                                inputs=tuple(options.inputs) if options.inputs else None,
-                               outputs=tuple(options.outputs) if options.outputs else None)
+                               outputs=tuple(options.outputs) if options.outputs else None,
+                               units=options.units, group=options.group)
             limits = DecodeLimits(settings.max_decoded_bytes, settings.max_channels)
             try:
                 measurement, periods_source = read_measurement(path, fmt, read, limits)

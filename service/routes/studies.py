@@ -36,7 +36,14 @@ _CONFLICT = {409: ERROR_RESPONSES[422] | {"description": "Conflict"}}
 
 # What estimation and validation data must share (summary keys, in words).
 _SAME_SET_UP = (("inputs", "input channels"), ("outputs", "output channels"),
-                ("fs", "sampling rate [Hz]"), ("quantity", "measured quantity"))
+                ("fs", "sampling rate [Hz]"), ("quantity", "measured quantity"),
+                ("units", "channel units"))
+
+
+def _set_up(summary: dict) -> dict:
+    """A dataset summary with its channels' units, "name [unit]" in order."""
+    return summary | {"units": [f"{c['name']} [{c.get('unit') or 'not given'}]"
+                                for c in summary["channels"]]}
 
 
 def get_studies(store: StoreDep) -> StudyStore:
@@ -60,7 +67,7 @@ def _check_pair(store: Store, request: StudyRequest) -> None:
     """Estimation and validation data of one set-up, and connections between outputs."""
     estimation: DatasetRecord = store.get_dataset(request.dataset_id)
     validation: DatasetRecord = store.get_dataset(request.validation_dataset_id)
-    a, b = estimation.summary, validation.summary
+    a, b = _set_up(estimation.summary), _set_up(validation.summary)
     for key, words in _SAME_SET_UP:
         if a[key] != b[key]:
             raise ProblemError(422, f"validation_dataset_id: datasets {estimation.id} and "

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StringConstraints
 
 from service.pagination import NextCursor
 from service.schemas.base import RequestModel
@@ -42,8 +42,8 @@ class UploadMeta(RequestModel):
     format: DatasetFormat | None = Field(
         None, description="File format; default from the extension (.npz .csv .mat .h5 "
         ".hdf5 .uff .unv).")
-    fs: StrictFloat | None = Field(None, gt=0, description="Sampling rate [Hz]; required for CSV.",
-                             examples=[2500.0])
+    fs: StrictFloat | None = Field(None, gt=0, description="Sampling rate [Hz]; required for "
+                                   "a CSV without a time column.", examples=[2500.0])
     inputs: list[str] | None = Field(
         None, min_length=1, description="Names of the input (force) channels; required for "
         "CSV, optional elsewhere (selects channels).", examples=[["force"]])
@@ -54,6 +54,13 @@ class UploadMeta(RequestModel):
         None, ge=1, description="Excitation periods per record; default from the file, else "
         "detected from the input.", examples=[8])
     quantity: Quantity | None = Field(None, description="What the outputs measure.")
+    units: dict[str, Annotated[str, StringConstraints(max_length=40)]] | None = Field(
+        None, max_length=4096, description="Channel name -> unit (\"N\", \"mm\", \"V\"), "
+        "overriding the file's; figures and results are labelled in them (\"input unit\", "
+        "\"output unit\" where none is given).", examples=[{"force": "N", "NC2w_Z": "mm"}])
+    group: str | None = Field(
+        None, max_length=1000, description="HDF5 / MATLAB v7.3: path of the group holding u "
+        "and y; default the root, or the one group holding them.", examples=["run1"])
 
 
 class ChannelSummary(BaseModel):
@@ -61,9 +68,13 @@ class ChannelSummary(BaseModel):
 
     name: str = Field(description="Channel name.", examples=["NC2w_Z"])
     role: Literal["input", "output"] = Field(description="Input force or measured output.")
-    rms: StrictFloat = Field(description="Root mean square over the whole record, in the channel's "
-                       "unit ([N] for inputs, the dataset quantity for outputs).",
-                       examples=[0.0123])
+    quantity: Literal["force", "displacement", "velocity", "acceleration"] | None = Field(
+        None, description="What the channel measures: force for inputs, the dataset "
+        "quantity for outputs.", examples=["displacement"])
+    unit: str | None = Field(None, description="Unit of the channel, from the file or the "
+                             "upload's meta.units; null when not given.", examples=["mm"])
+    rms: StrictFloat = Field(description="Root mean square over the whole record, in the "
+                             "channel's unit.", examples=[0.0123])
     snr_db: StrictFloat | None = Field(
         description="Signal-to-noise ratio [dB] from the period-to-period variation (first "
         "period skipped as transient when there are >= 3); null with fewer than 2 periods or "

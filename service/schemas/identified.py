@@ -40,6 +40,9 @@ class IdentifiedCoefficient(StoredDocument):
                                           "large for a physical element.")
     variation: float | None = Field(None, description="Relative spread of Re mu over "
                                     "frequency [-].")
+    unit: str | None = Field(None, description="Unit of mu: input unit per unit of the "
+                             "basis function (fnsi.units; 'input unit', 'output unit' where "
+                             "the dataset gives none).", examples=["N/mm^3"])
 
 
 class ChannelError(StoredDocument):

@@ -56,6 +56,20 @@ class IdentifiedStiffnessCurve(StoredDocument):
     variable: str = Field(description="Abscissa: displacement or velocity.")
     x: list[float] = Field(description="Abscissae over the measured range.")
     force: list[float] = Field(description="Element force at x.")
+    x_unit: str | None = Field(None, description="Unit of x.", examples=["mm"])
+    force_unit: str | None = Field(None, description="Unit of force.", examples=["N"])
+
+
+class DataUnits(StoredDocument):
+    """Units of the identified channels and of the FRF (fnsi.units): the dataset's,
+    'input unit' and 'output unit' where it gives none."""
+
+    input: str = Field(description="Unit of the inputs (forces).", examples=["N"])
+    output: str = Field(description="Unit of the outputs.", examples=["mm"])
+    displacement: str = Field(description="Unit of displacements (the output unit, "
+                              "integrated for velocities and accelerations).",
+                              examples=["mm"])
+    frf: str = Field(description="Unit of an FRF: output per input unit.", examples=["mm/N"])
 
 
 
@@ -110,6 +124,7 @@ class IdentificationJobResult(StoredDocument):
     order: int = Field(description="Model order n.", examples=[10])
     modes: list[IdentifiedMode] = Field(description="Physical modes in the band.")
     output_names: list[str] = Field(description="Output channels, order of mode shapes.")
+    units: DataUnits | None = Field(None, description="Units of the data identified from.")
     coefficients: list[IdentifiedCoefficient] = Field(
         description="Nonlinear coefficients with quality criteria.")
     stiffness: list[IdentifiedStiffnessCurve] = Field(description="One curve per element whose "
@@ -192,6 +207,8 @@ class AnalysisJobResult(StoredDocument):
     realisations: int = Field(description="Realisations analysed.", examples=[1])
     periods: int = Field(description="Periods kept.", examples=[2])
     channels: list[ChannelDistortionLevels] = Field(description="Levels per output.")
+    unit: str | None = Field(None, description="Unit of the outputs the levels refer to.",
+                             examples=["mm"])
     verdict: str = Field(description="How nonlinear, which law, what can be told, in "
                          "words with the numbers.")
 

@@ -180,3 +180,33 @@ def test_info_refuses_what_the_service_refuses(tmp_path, capsys):
         f.attrs["fs"] = 10.0
     code, out, err = run(capsys, "info", path)
     assert code == 2 and "external storage" in err and out == ""
+
+
+def _flags(options: dict) -> list[str]:
+    """The CLI flags of an upload's meta."""
+    words = []
+    for key, value in options.items():
+        if key == "units":
+            value = ",".join(f"{name}={unit}" for name, unit in value.items())
+        elif isinstance(value, list):
+            value = ",".join(value)
+        words += [f"--{key}", str(value)]
+    return words
+
+
+@pytest.mark.parametrize("case", list(formats.LAYOUTS))
+def test_info_reads_or_refuses_each_layout_as_the_service_does(case, tmp_path, capsys):
+    """The layout cases of tests/service/test_dataset_layouts.py, read by ``fnsi info``."""
+    layout = formats.LAYOUTS[case]
+    code, out, err = run(capsys, "info", layout.write(tmp_path), *_flags(layout.options))
+    if layout.status != 201:
+        assert code == 2 and out == "", out
+        assert all(word in err.lower() for word in layout.says), err
+        return
+    assert code == 0, err
+    summary = json.loads(out)
+    summary["units"] = {name: unit or None for name, unit in zip(
+        summary["inputs"] + summary["outputs"],
+        summary["input_units"] + summary["output_units"], strict=True)}
+    for field, value in layout.fields.items():
+        assert summary[field] == value, field

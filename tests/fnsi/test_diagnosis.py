@@ -243,8 +243,8 @@ def test_smallsat_single_clearance_ranks_first_and_fixes_the_model(smallsat_case
     # Table 2: gap 1.5 mm; the fixed-pole search finds it within 5 %.
     gn, gp = top.element.gaps
     assert gn == pytest.approx(1.5, rel=0.05) and gp == pytest.approx(1.5, rel=0.05)
-    said = re.search(r"clearance of about ±([0-9.]+) between NC2w_Z and NC2b_Z",
-                     top.explanation)
+    said = re.search(r"clearance of about ±([0-9.]+) mm between NC2w_Z and NC2b_Z, adding "
+                     r"stiffness [0-9.]+ \(20 N\)/mm", top.explanation)   # the preset's units
     assert said and float(said.group(1)) == pytest.approx(1.5, rel=0.05)
     assert_fixed(study)
     # the revision records its refinement and the refined gap, and keeps them when saved

@@ -80,11 +80,55 @@ def test_npz_members_the_dataset_does_not_use_stay_compressed(tmp_path):
     assert peak < 10 * 2**20, peak
 
 
-def test_hdf5_data_in_a_group_get_a_hint(tmp_path):
+def test_hdf5_data_in_one_group_are_read_from_it(tmp_path):
+    """The one group holding u and y is read; rate and names at the root apply to it."""
     path = formats.write_h5(REC, tmp_path / "r.h5")
     with h5py.File(path, "r+") as f:
         f.create_group("run1")
         for name in ("u", "y"):
             f.move(name, f"run1/{name}")
-    with pytest.raises(ValueError, match=r"groups \['run1'\] hold \['u', 'y'\].*f.move"):
-        read_measurement(path, "h5")
+    m, _ = read_measurement(path, "h5")
+    np.testing.assert_array_equal(m.y[0], REC.y)
+    assert (m.fs, m.input_names) == (REC.fs, REC.input_names)
+
+
+def test_a_csv_time_column_with_a_missing_sample_is_refused(tmp_path):
+    path = formats.write_csv_with_time(REC, tmp_path / "timed.csv", header="t (ms)")
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:100] + lines[101:]) + "\n")   # row 100 lost
+    with pytest.raises(ValueError, match=r"not evenly sampled .* missing or repeated"):
+        read_measurement(path, "csv", ReadOptions(inputs=("force",)))
+
+
+def test_a_csv_time_column_in_milliseconds_gives_the_rate(tmp_path):
+    path = tmp_path / "timed.csv"
+    t_ms = 1e3 * np.arange(REC.u.shape[0]) / REC.fs
+    np.savetxt(path, np.column_stack([t_ms, REC.u, REC.y]), delimiter=",", comments="",
+               header="t (ms),force,NC2w_Z,NC2b_Z")
+    m, _ = read_measurement(path, "csv", ReadOptions(inputs=("force",)))
+    assert m.fs == pytest.approx(REC.fs, rel=1e-12) and m.output_names == REC.output_names
+
+
+def test_a_group_that_is_not_there_lists_the_root(tmp_path):
+    path = formats.write_h5_in_groups(REC, tmp_path / "two.h5", ("run1", "run2"))
+    with pytest.raises(ValueError, match=r"no group 'run3'.*\['input_names', 'output_names', "
+                                         r"'run1/', 'run2/'\]"):
+        read_measurement(path, "h5", ReadOptions(group="run3"))
+
+
+def test_matlab_v73_iddata_spellings_in_a_group(tmp_path):
+    path = formats.write_mat_iddata(REC, tmp_path / "iddata.mat", v73=True)
+    with h5py.File(path, "r+") as f:
+        f.create_group("run")
+        for name in ("InputData", "OutputData", "Ts"):
+            f.move(name, f"run/{name}")
+    m, _ = read_measurement(path, "mat", ReadOptions(group="/run"))
+    np.testing.assert_array_equal(m.y[0], REC.y)
+    assert m.fs == pytest.approx(REC.fs, rel=1e-15)  # 1 / (1 / 1000) in doubles
+
+
+def test_a_variable_given_under_two_spellings_is_refused(tmp_path):
+    path = tmp_path / "both.mat"
+    scipy.io.savemat(path, {"u": REC.u, "y": REC.y, "fs": REC.fs, "Ts": 1 / REC.fs})
+    with pytest.raises(ValueError, match=r"gives fs twice, as \['fs', 'Ts'\]"):
+        read_measurement(path, "mat")

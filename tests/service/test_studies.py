@@ -10,6 +10,7 @@ validation error fall.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import threading
@@ -66,7 +67,9 @@ def datasets(server, records):
     with server.client(headers=ALICE) as client:
         return {"estimation": _upload(client, estimation),
                 "validation": _upload(client, validation),
-                "fewer": _upload(client, validation.select(outputs=["x1", "x2"]))}
+                "fewer": _upload(client, validation.select(outputs=["x1", "x2"])),
+                "in volts": _upload(client, dataclasses.replace(validation,
+                                                                input_units=("V",)))}
 
 
 @pytest.fixture(scope="module")
@@ -193,6 +196,8 @@ def test_bad_requests_say_what_to_change(server, datasets, worked):
          422, "validation_dataset_id: dataset ds_nope does not exist"),
         ("/v1/studies", {**pair, "validation_dataset_id": datasets["fewer"]},
          422, "different output channels"),
+        ("/v1/studies", {**pair, "validation_dataset_id": datasets["in volts"]},
+         422, "different channel units (['F_x1 [not given]'"),
         ("/v1/studies", {**pair, "connections": [["x1", "x9"]]},
          422, "connections[0]: ['x9'] are not outputs"),
         ("/v1/studies", {**pair, "order": 30}, 422, "max_order"),
