@@ -5,9 +5,10 @@ job. Its state is kept as immutable snapshots written by :meth:`fnsi.study.Study
 into the store's tmp folder and renamed into place, so a reader always sees a complete
 study and a job that dies while saving leaves the previous revision intact. Jobs of a
 study are ordinary jobs whose request names it (``study_id``); their order is the job
-sequence of the store. Revision jobs take the study's lock (``flock``, released by the
-kernel when a worker dies), so two revisions never read the same state and overwrite
-each other's result.
+sequence of the store. Revision jobs take the study's lock (:meth:`Database.held_lock
+<service.database.Database.held_lock>`: ``flock`` on SQLite, an advisory lock on
+PostgreSQL; both released when a worker dies), so two revisions never read the same
+state and overwrite each other's result.
 
 Layout::
 
@@ -20,16 +21,14 @@ Layout::
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import re
 import shutil
-import sqlite3
 import tempfile
 import time
 from collections.abc import Callable, Iterator
-from contextlib import closing, contextmanager
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -39,8 +38,6 @@ from service.store import JobRecord, Store, new_id, now_iso
 
 STUDY_ID = re.compile(r"^study_[0-9a-f]{20}$")
 _SNAPSHOT = re.compile(r"^revisions-(?P<count>[0-9]+)$")
-STUDY_JOB_KINDS = ("study", "study_revision", "study_diagnosis")
-"""Job kinds acting on a study: creation (revision 0), a revision, a diagnosis."""
 # How often [s] a job waiting for the study's lock or earlier revisions looks again.
 _WAIT_INTERVAL = 0.5
 
@@ -131,13 +128,8 @@ class StudyStore:
         return records[:limit]
 
     def jobs(self, study_id: str, owner: str) -> list[JobRecord]:
-        """Every job of the study, oldest first (read-only query of the job table)."""
-        marks = ", ".join("?" * len(STUDY_JOB_KINDS))
-        with closing(sqlite3.connect(self.store.db_path, timeout=30.0)) as db:
-            rows = db.execute(f"SELECT id FROM jobs WHERE owner = ? AND kind IN ({marks}) "
-                              "AND json_extract(request, '$.study_id') = ? ORDER BY seq",
-                              (owner, *STUDY_JOB_KINDS, study_id)).fetchall()
-        return self.store.jobs_of([row[0] for row in rows])
+        """Every job of the study, oldest first."""
+        return self.store.jobs_of_study(study_id, owner)
 
     # -- snapshots --------------------------------------------------------------------------
     def _snapshots(self, study_id: str) -> list[tuple[int, Path]]:
@@ -189,18 +181,9 @@ class StudyStore:
     def locked(self, study_id: str, wait: Callable[[], None]) -> Iterator[None]:
         """Hold the study's lock; ``wait()`` is called between tries (it may raise to
         give up, e.g. when the job is cancelled)."""
-        with open(self.folder(study_id) / "lock", "a") as handle:
-            while True:
-                try:
-                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    break
-                except BlockingIOError:
-                    wait()
-                    time.sleep(_WAIT_INTERVAL)
-            try:
-                yield
-            finally:
-                fcntl.flock(handle, fcntl.LOCK_UN)
+        with self.store.db.held_lock(f"study:{study_id}", self.folder(study_id) / "lock",
+                                     wait):
+            yield
 
     def wait_for_earlier_revisions(self, job: JobRecord, wait: Callable[[str], None]) -> None:
         """Return once every revision job of the study submitted before ``job`` ended, so

@@ -77,7 +77,7 @@ def refuse_foreign(task: Task, store: str | None, settings: Settings) -> None:
     celery.exceptions.Reject
         With ``requeue``, so that a worker on the right FNSI_DATA_DIR runs the job.
     """
-    ours = Store(settings.data_dir).instance_id
+    ours = Store.from_settings(settings).instance_id
     if store is None or store == ours:
         return
     log.error("FNSI_DATA_DIR %s is not the data directory of the API that queued this job "

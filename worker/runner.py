@@ -117,7 +117,7 @@ def run_job(job_id: str, settings: Settings, tasks: dict[str, Task],
     Claim
         What the claim decided; ``retry_after`` set when another worker holds the lease.
     """
-    store = Store(settings.data_dir)
+    store = Store.from_settings(settings)
     claim = store.claim(job_id, lease_seconds=settings.lease_seconds,
                         max_attempts=settings.max_attempts)
     if not claim.run:
