@@ -51,6 +51,8 @@ def _sqlite_engine(url: str) -> Engine:
     def _no_driver_transactions(dbapi_connection, _record) -> None:
         # The driver's own implicit BEGIN would be DEFERRED; the store begins itself.
         dbapi_connection.isolation_level = None
+        # Readers never wait for the writer (persistent; set outside any transaction).
+        dbapi_connection.execute("PRAGMA journal_mode=WAL")
 
     @event.listens_for(engine, "begin")
     def _begin(connection: Connection) -> None:
@@ -113,8 +115,6 @@ class Database:
         self.dialect = self.engine.dialect.name
         if self.url not in _migrated:
             with self.transaction() as db:
-                if self.dialect == "sqlite":
-                    db.exec_driver_sql("PRAGMA journal_mode=WAL")
                 self.lock_key(db, "schema")  # processes starting together migrate once
                 migrate(db)
             _migrated.add(self.url)

@@ -15,7 +15,8 @@ Versions:
    found by reading their request JSON).
 2. Datasets get an explicit sequence number (PostgreSQL has no rowid; SQLite keeps the
    old rowids, so cursors handed out before stay valid); jobs get an indexed ``study_id``
-   column; ``store_info`` holds the store's identity.
+   column; ``store_info`` holds the store's identity; ``objects`` lists the blobs and
+   artefacts kept in the database (:mod:`service.objects`).
 """
 
 from __future__ import annotations
@@ -113,6 +114,12 @@ store_info = Table(
     Column("key", Text, primary_key=True),
     Column("value", Text, nullable=False))
 
+objects = Table(
+    "objects", metadata,
+    Column("key", Text, primary_key=True),
+    Column("oid", BigInteger, nullable=False),  # a PostgreSQL large object
+    Column("size", BigInteger, nullable=False))
+
 schema_version = Table(
     "schema_version", metadata,
     Column("version", Integer, nullable=False))
@@ -131,8 +138,9 @@ def _to_2(db: Connection) -> None:
     kinds = ", ".join(f"'{kind}'" for kind in STUDY_JOB_KINDS)
     db.exec_driver_sql(f"UPDATE jobs SET study_id = json_extract(request, '$.study_id') "
                        f"WHERE kind IN ({kinds})")
-    Index("jobs_by_study", jobs.c.study_id).create(db)
+    db.exec_driver_sql("CREATE INDEX jobs_by_study ON jobs (study_id)")
     store_info.create(db)
+    objects.create(db)
 
 
 _STEPS: dict[int, Callable[[Connection], None]] = {2: _to_2}

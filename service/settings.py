@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -122,6 +122,12 @@ class Settings(BaseSettings):
         None, description="Database of the job store's records, shared by every API and "
         "worker process (e.g. postgresql://fnsi@db.lab:5432/fnsi). Unset: SQLite in "
         "FNSI_DATA_DIR, for one machine.", examples=["postgresql://fnsi@127.0.0.1:5432/fnsi"])
+
+    blob_store: Literal["folder", "database"] = Field(
+        "folder", description="Where dataset blobs and job artefacts are kept: `folder`, "
+        "only in FNSI_DATA_DIR (every API and worker must share it, e.g. over NFS); "
+        "`database`, in the PostgreSQL database of FNSI_DATABASE_URL as well, so hosts need "
+        "no shared folder (each one's FNSI_DATA_DIR is then its own cache).")
 
     @field_validator("database_url")
     @classmethod

@@ -48,6 +48,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from fnsi.measurement import Measurement
 from fnsi.summary import summarize
 from service.database import Database, sqlite_url
+from service.objects import DatabaseObjects
 from service.schema import STUDY_JOB_KINDS, batches, blobs, datasets, jobs, store_info, uploads
 
 if TYPE_CHECKING:
@@ -204,9 +205,14 @@ class Store:
         Root directory of the files, shared by the API and the workers.
     database_url : str, optional
         Database of the records (``postgresql://...``); default: SQLite in ``data_dir``.
+    blob_store : {"folder", "database"}
+        Where blobs and artefacts are kept: only in ``data_dir`` (hosts share it), or also
+        in the PostgreSQL database, ``data_dir`` being this host's cache
+        (:mod:`service.objects`).
     """
 
-    def __init__(self, data_dir: Path, database_url: str | None = None) -> None:
+    def __init__(self, data_dir: Path, database_url: str | None = None,
+                 blob_store: str = "folder") -> None:
         self.root = Path(data_dir).resolve()
         self.blobs = self.root / "blobs"
         self.jobs_dir = self.root / "jobs"
@@ -215,12 +221,16 @@ class Store:
             d.mkdir(parents=True, exist_ok=True)
         self.db_path = self.root / "fnsi.sqlite3"
         self.db = Database(database_url or sqlite_url(self.db_path))
+        if blob_store == "database" and not self.db.shared:
+            raise ValueError("FNSI_BLOB_STORE=database keeps blobs in the PostgreSQL database: "
+                             "set FNSI_DATABASE_URL=postgresql://... as well")
+        self.objects = DatabaseObjects() if blob_store == "database" else None
         self._render_locks = [threading.Lock() for _ in range(_RENDER_LOCKS)]
 
     @classmethod
     def from_settings(cls, settings: Settings) -> Store:
-        """The store of :class:`service.settings.Settings` (data_dir, database_url)."""
-        return cls(settings.data_dir, settings.database_url)
+        """The store of :class:`service.settings.Settings` (data dir, database, blobs)."""
+        return cls(settings.data_dir, settings.database_url, settings.blob_store)
 
     @functools.cached_property
     def instance_id(self) -> str:
@@ -253,6 +263,29 @@ class Store:
             yield path
         finally:
             path.unlink(missing_ok=True)
+
+    # -- shared objects (FNSI_BLOB_STORE=database) -------------------------------------------
+    def _key(self, path: Path) -> str:
+        """Object key of a file of the data directory: its relative path."""
+        return path.relative_to(self.root).as_posix()
+
+    def _share(self, db: Connection, path: Path) -> None:
+        """Copy the file ``path`` into the shared objects, in the transaction of ``db``."""
+        if self.objects is not None:
+            self.objects.put(db, self._key(path), path)
+
+    def _fetch(self, path: Path) -> None:
+        """Put the shared object of ``path`` in place in this host's data directory."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with self.partial_file(path.suffix) as partial, self.db.read() as db:
+            if self.objects.fetch(db, self._key(path), partial):
+                os.replace(partial, path)
+
+    def _cached(self, path: Path) -> Path:
+        """``path`` of an immutable file, fetched first if this host does not have it."""
+        if self.objects is not None and not path.exists():
+            self._fetch(path)
+        return path
 
     # -- datasets ---------------------------------------------------------------------------
     def blob_path(self, digest: str) -> Path:
@@ -298,6 +331,7 @@ class Store:
                 self.db.lock_key(db, f"blob:{digest}")
                 if not self._blob_known(db, digest):
                     os.replace(partial, path)
+                    self._share(db, path)
                     db.execute(insert(blobs).values(digest=digest, summary=json.dumps(summary),
                                                     size=path.stat().st_size))
                 if upload_key is not None:
@@ -355,7 +389,7 @@ class Store:
         record = self.get_dataset(dataset_id)
         if record is None:
             raise ValueError(f"dataset {dataset_id} does not exist (deleted?); upload it again")
-        return Measurement.from_npz(self.blob_path(record.digest))
+        return Measurement.from_npz(self._cached(self.blob_path(record.digest)))
 
     def delete_dataset(self, dataset_id: str) -> None:
         """Remove a dataset; its blob goes when no other dataset shares it."""
@@ -372,6 +406,8 @@ class Store:
             if shared is None:
                 db.execute(delete(uploads).where(uploads.c.digest == digest))
                 db.execute(delete(blobs).where(blobs.c.digest == digest))
+                if self.objects is not None:
+                    self.objects.delete(db, [self._key(self.blob_path(digest))])
                 # Inside the lock, so a concurrent identical upload cannot lose its file.
                 self.blob_path(digest).unlink(missing_ok=True)
                 self.blob_path(digest).with_suffix(".csv").unlink(missing_ok=True)
@@ -383,7 +419,7 @@ class Store:
         removes the name, not the data), so a download is complete or never starts.
         """
         with suppress(FileNotFoundError):
-            return open(self.blob_path(record.digest), "rb")
+            return open(self._cached(self.blob_path(record.digest)), "rb")
         return None
 
     def open_csv(self, record: DatasetRecord) -> BinaryIO | None:
@@ -586,6 +622,8 @@ class Store:
                               .with_for_update(skip_locked=True)).scalars().all()
             for job_id in rows:
                 db.execute(delete(jobs).where(jobs.c.id == job_id))
+                if self.objects is not None:
+                    self.objects.delete_under(db, f"{self._key(self.artefact_dir(job_id))}/")
                 removed.append(job_id)
                 folder = self.artefact_dir(job_id)
                 if folder.is_dir():
@@ -686,19 +724,30 @@ class Store:
         with self.partial_file() as partial:
             partial.write_bytes(data)
             os.replace(partial, folder / name)
+        if self.objects is not None:
+            with self.db.transaction() as db:
+                self._share(db, folder / name)
 
     def list_artefacts(self, job_id: str) -> list[tuple[str, int]]:
         """(name, size in bytes) of every artefact of a job, sorted by name."""
         folder = self.artefact_dir(job_id)
-        if not folder.is_dir():
-            return []
-        return sorted((p.name, p.stat().st_size) for p in folder.iterdir()
-                      if p.is_file() and ARTEFACT_NAME.match(p.name))
+        if self.objects is not None:
+            with self.db.read() as db:
+                found = self.objects.listing(db, f"{self._key(folder)}/")
+        elif folder.is_dir():
+            found = [(p.name, p.stat().st_size) for p in folder.iterdir() if p.is_file()]
+        else:
+            found = []
+        return sorted((name, size) for name, size in found if ARTEFACT_NAME.match(name))
 
     def artefact_path(self, job_id: str, name: str) -> Path | None:
         """Path of an artefact found by listing (a name is never used as a path)."""
-        listed = {n for n, _ in self.list_artefacts(job_id)}
-        return self.artefact_dir(job_id) / name if name in listed else None
+        if name not in {n for n, _ in self.list_artefacts(job_id)}:
+            return None
+        path = self.artefact_dir(job_id) / name
+        if self.objects is not None:
+            self._fetch(path)  # always: a new attempt of the job may have replaced it
+        return path
 
     def open_artefact(self, job_id: str, name: str) -> BinaryIO | None:
         """An artefact found by listing, opened for reading; None if the job has no such

@@ -11,10 +11,12 @@ the ``dev`` extra.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterator
 
 import pytest
 
 from tests.redis_server import LocalRedis, redis_answers
+from tests.service.databases import fresh_schema, skip_without_postgres, temporary_database
 
 DEFAULT_REDIS_URL = "redis://127.0.0.1:6379/0"
 
@@ -42,3 +44,21 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 
 
 _REDIS_NOTE = pytest.StashKey[str]()
+
+
+@pytest.fixture(scope="session")
+def postgres_database() -> Iterator[str]:
+    """A PostgreSQL database of this test session (skips the test without a server)."""
+    skip_without_postgres()
+    with temporary_database() as url:
+        yield url
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def database(request) -> Callable[[], str | None]:
+    """Each store-level and API-level test runs on both record stores: a factory of fresh,
+    empty databases (None: SQLite in the data dir)."""
+    if request.param == "sqlite":
+        return lambda: None
+    url = request.getfixturevalue("postgres_database")
+    return lambda: fresh_schema(url)

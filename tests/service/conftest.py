@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -10,27 +10,8 @@ from fastapi.testclient import TestClient
 
 from service.app import create_app
 from service.settings import Settings
-from tests.service.databases import fresh_schema, skip_without_postgres, temporary_database
 from tests.service.servers import Stack, start_stack
 from tests.service.servers import celery_stack as running_celery_stack
-
-
-@pytest.fixture(scope="session")
-def postgres_database() -> Iterator[str]:
-    """A PostgreSQL database of this test session (skips the test without a server)."""
-    skip_without_postgres()
-    with temporary_database() as url:
-        yield url
-
-
-@pytest.fixture(params=["sqlite", "postgresql"])
-def database(request) -> Callable[[], str | None]:
-    """Each store-level and API-level test runs on both record stores: a factory of fresh,
-    empty databases (None: SQLite in the data dir)."""
-    if request.param == "sqlite":
-        return lambda: None
-    url = request.getfixturevalue("postgres_database")
-    return lambda: fresh_schema(url)
 
 
 @pytest.fixture

@@ -13,13 +13,15 @@ from worker.runner import run_job
 
 
 @pytest.fixture
-def settings(tmp_path) -> Settings:
-    return Settings(data_dir=tmp_path, lease_seconds=1.0, max_attempts=2, job_time_limit=30.0)
+def settings(tmp_path, database) -> Settings:
+    """Short leases, on each record store (the claim and lease contract is the store's)."""
+    return Settings(data_dir=tmp_path, lease_seconds=1.0, max_attempts=2, job_time_limit=30.0,
+                    database_url=database())
 
 
 @pytest.fixture
 def store(settings) -> Store:
-    return Store(settings.data_dir)
+    return Store.from_settings(settings)
 
 
 def counting_task(steps: int, pause: float):
@@ -79,8 +81,8 @@ def test_cancel_stops_a_running_task_within_a_second(store, settings):
     assert cancelled.state == JobState.CANCELLED and 0 < cancelled.progress < 1
 
 
-def test_time_limit_fails_the_job_with_a_reason(store, tmp_path):
-    settings = Settings(data_dir=tmp_path, job_time_limit=0.2, lease_seconds=1.0)
+def test_time_limit_fails_the_job_with_a_reason(store, settings):
+    settings = settings.model_copy(update={"job_time_limit": 0.2})
     job = store.create_job("me", "simulation", {})
     run_job(job.id, settings, {"simulation": counting_task(100, 0.01)})
     failed = store.get_job(job.id)
