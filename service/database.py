@@ -30,6 +30,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from sqlalchemy import Connection, Engine, create_engine, event, text
+from sqlalchemy.exc import InterfaceError, OperationalError
 
 from service.schema import migrate
 
@@ -89,6 +90,12 @@ os.register_at_fork(after_in_child=_forget_inherited_engines)
 def _lock_number(key: str) -> int:
     """Signed 64-bit number naming ``key`` for PostgreSQL's advisory locks."""
     return int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big", signed=True)
+
+
+def unreachable(err: BaseException) -> bool:
+    """True if ``err`` says the database is out of reach (refused, restarting, connection
+    lost), a condition that passes, rather than a fault of the statement."""
+    return isinstance(err, OperationalError | InterfaceError)
 
 
 def check_database_url(url: str) -> str:

@@ -155,6 +155,21 @@ class IdempotencyConflictError(ValueError):
     """An Idempotency-Key was reused with a different request body."""
 
 
+class LeaseLostError(RuntimeError):
+    """An attempt no longer holds its job: its lease lapsed (e.g. the database was out of
+    reach for longer than the lease) and the job was re-queued or ended. The attempt must
+    stop and store nothing, so that at most one attempt of a job completes."""
+
+    def __init__(self, job_id: str, attempt: int) -> None:
+        super().__init__(f"job {job_id}: attempt {attempt} lost its lease")
+
+
+def _running(job_id: str, attempt: int | None) -> ColumnElement[bool]:
+    """The job is running (``attempt``: that attempt)."""
+    condition = (jobs.c.id == job_id) & (jobs.c.state == JobState.RUNNING.value)
+    return condition if attempt is None else condition & (jobs.c.attempts == attempt)
+
+
 def _job(row: RowMapping) -> JobRecord:
     return JobRecord(
         seq=row["seq"], id=row["id"], owner=row["owner"], kind=row["kind"],
@@ -558,23 +573,36 @@ class Store:
             return Claim(True, attempt=job.attempts + 1)
 
     def report(self, job_id: str, *, lease_seconds: float, progress: float | None = None,
-               message: str | None = None) -> bool:
-        """Renew the lease of a running job, optionally with progress; True if cancel asked."""
+               message: str | None = None, attempt: int | None = None) -> bool:
+        """Renew the lease of a running job, optionally with progress; True if cancel asked.
+
+        Raises
+        ------
+        LeaseLostError
+            ``attempt`` given and the job is no longer running that attempt.
+        """
         changes: dict[str, Any] = {"lease_until": time.time() + lease_seconds}
         if progress is not None:
             changes["progress"] = progress
         if message is not None:
             changes["message"] = message
         with self.db.transaction() as db:
-            db.execute(update(jobs).where(jobs.c.id == job_id,
-                                          jobs.c.state == JobState.RUNNING.value).values(changes))
+            renewed = db.execute(update(jobs).where(_running(job_id, attempt)).values(changes))
+            if attempt is not None and renewed.rowcount == 0:
+                raise LeaseLostError(job_id, attempt)
             return bool(db.execute(select(jobs.c.cancel_requested).where(jobs.c.id == job_id)
                                    ).scalar())
 
     def finish(self, job_id: str, state: JobState, *, result: dict | None = None,
-               error: str | None = None, message: str = "") -> None:
-        """End a running job (terminal state, result or error)."""
+               error: str | None = None, message: str = "", attempt: int | None = None
+               ) -> None:
+        """End a running job (terminal state, result or error); with ``attempt``, only if
+        the job still runs that attempt, else :class:`LeaseLostError`."""
         with self.db.transaction() as db:
+            if attempt is not None and db.execute(
+                    select(jobs.c.id).where(_running(job_id, attempt)).with_for_update()
+            ).first() is None:
+                raise LeaseLostError(job_id, attempt)
             self._finish(db, job_id, state, result=result, error=error, message=message)
 
     @staticmethod

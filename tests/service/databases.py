@@ -31,7 +31,7 @@ def skip_without_postgres() -> None:
         psycopg.connect(ADMIN_URL, connect_timeout=3).close()
     except psycopg.OperationalError as err:
         pytest.skip(f"no PostgreSQL at {ADMIN_URL} ({str(err).strip()}): start one (README, "
-                    "'Several machines') or point FNSI_TEST_POSTGRES_URL at one")
+                    "'Scaling out') or point FNSI_TEST_POSTGRES_URL at one")
 
 
 @contextmanager
