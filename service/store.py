@@ -284,10 +284,41 @@ class Store:
         """Object key of a file of the data directory: its relative path."""
         return path.relative_to(self.root).as_posix()
 
-    def _share(self, db: Connection, path: Path) -> None:
-        """Copy the file ``path`` into the shared objects, in the transaction of ``db``."""
+    def _share(self, db: Connection, path: Path, source: Path | None = None) -> None:
+        """Copy the file ``path`` (read from ``source`` if given) into the shared objects,
+        in the transaction of ``db``."""
         if self.objects is not None:
-            self.objects.put(db, self._key(path), path)
+            self.objects.put(db, self._key(path), source or path)
+
+    def share_file(self, path: Path, source: Path) -> None:
+        """Share the file ``source`` as the file ``path`` of the data directory (no-op
+        without shared objects)."""
+        if self.objects is not None:
+            with self.db.transaction() as db:
+                self._share(db, path, source)
+
+    def share_folder(self, folder: Path, source: Path) -> None:
+        """Share every file of the folder ``source`` as the files of ``folder`` (a folder
+        of the data directory), all or none (no-op without shared objects)."""
+        if self.objects is None:
+            return
+        with self.db.transaction() as db:
+            for file in sorted(source.iterdir()):
+                self._share(db, folder / file.name, file)
+
+    def unshare_folder(self, folder: Path) -> None:
+        """Remove the shared objects of the files of ``folder`` (no-op without them)."""
+        if self.objects is not None:
+            with self.db.transaction() as db:
+                self.objects.delete_under(db, f"{self._key(folder)}/")
+
+    def shared_files(self, folder: Path) -> list[str] | None:
+        """Relative paths of the shared files under ``folder``; None without shared
+        objects (the data directory is then the only copy)."""
+        if self.objects is None:
+            return None
+        with self.db.read() as db:
+            return [name for name, _ in self.objects.listing(db, f"{self._key(folder)}/")]
 
     def _fetch(self, path: Path) -> None:
         """Put the shared object of ``path`` in place in this host's data directory."""
@@ -296,7 +327,7 @@ class Store:
             if self.objects.fetch(db, self._key(path), partial):
                 os.replace(partial, path)
 
-    def _cached(self, path: Path) -> Path:
+    def cached(self, path: Path) -> Path:
         """``path`` of an immutable file, fetched first if this host does not have it."""
         if self.objects is not None and not path.exists():
             self._fetch(path)
@@ -404,7 +435,7 @@ class Store:
         record = self.get_dataset(dataset_id)
         if record is None:
             raise ValueError(f"dataset {dataset_id} does not exist (deleted?); upload it again")
-        return Measurement.from_npz(self._cached(self.blob_path(record.digest)))
+        return Measurement.from_npz(self.cached(self.blob_path(record.digest)))
 
     def delete_dataset(self, dataset_id: str) -> None:
         """Remove a dataset; its blob goes when no other dataset shares it."""
@@ -434,7 +465,7 @@ class Store:
         removes the name, not the data), so a download is complete or never starts.
         """
         with suppress(FileNotFoundError):
-            return open(self._cached(self.blob_path(record.digest)), "rb")
+            return open(self.cached(self.blob_path(record.digest)), "rb")
         return None
 
     def open_csv(self, record: DatasetRecord) -> BinaryIO | None:

@@ -10,6 +10,10 @@ sequence of the store. Revision jobs take the study's lock (:meth:`Database.held
 PostgreSQL; both released when a worker dies), so two revisions never read the same
 state and overwrite each other's result.
 
+With FNSI_BLOB_STORE=database every file below is also a shared object (a snapshot's
+files all in one transaction, before it is renamed into place), and each host's folder
+is a cache of them: hosts share studies without sharing a folder.
+
 Layout::
 
     <data_dir>/studies/<study_id>/record.json        owner, name, creation request
@@ -100,6 +104,7 @@ class StudyStore:
         folder.mkdir()
         with self.store.partial_file(".json") as partial:
             partial.write_text(json.dumps(asdict(record)))
+            self.store.share_file(folder / "record.json", partial)
             os.replace(partial, folder / "record.json")
         return record
 
@@ -107,7 +112,7 @@ class StudyStore:
         """The study's record, or None if there is no such study."""
         if not STUDY_ID.match(study_id):
             return None
-        path = self.folder(study_id) / "record.json"
+        path = self.store.cached(self.folder(study_id) / "record.json")
         if not path.is_file():
             return None
         return StudyRecord(**json.loads(path.read_text()))
@@ -117,9 +122,12 @@ class StudyStore:
         """Studies of ``owner``, newest first (by creation time, then id); ``before`` pages
         with the ``(created_at, id)`` of the last study of the previous page. Reads every
         study's record: meant for a lab's hundreds of studies, not for millions."""
+        shared = self.store.shared_files(self.root)
+        study_ids = ({name.split("/")[0] for name in shared} if shared is not None
+                     else {folder.name for folder in self.root.iterdir()})
         records = []
-        for folder in self.root.iterdir():
-            record = self.get(folder.name)
+        for study_id in sorted(study_ids):
+            record = self.get(study_id)
             if record is not None and record.owner == owner:
                 records.append(record)
         records.sort(key=lambda r: (r.created_at, r.id), reverse=True)
@@ -134,9 +142,19 @@ class StudyStore:
     # -- snapshots --------------------------------------------------------------------------
     def _snapshots(self, study_id: str) -> list[tuple[int, Path]]:
         folder = self.folder(study_id)
-        found = [(int(m["count"]), p) for p in folder.iterdir()
-                 if (m := _SNAPSHOT.match(p.name)) and p.is_dir()] if folder.is_dir() else []
-        return sorted(found)
+        shared = self.store.shared_files(folder)
+        if shared is not None:
+            names = {name.split("/")[0] for name in shared if "/" in name}
+        else:
+            names = {p.name for p in folder.iterdir() if p.is_dir()} if folder.is_dir() else set()
+        return sorted((int(m["count"]), folder / name) for name in names
+                      if (m := _SNAPSHOT.match(name)))
+
+    def _fetched(self, folder: Path) -> Path:
+        """A snapshot folder with all its files on this host (snapshots never change)."""
+        for name in self.store.shared_files(folder) or []:
+            self.store.cached(folder / name)
+        return folder
 
     def snapshot(self, study_id: str) -> Snapshot | None:
         """The latest saved state, or None before revision 0 is saved."""
@@ -146,8 +164,8 @@ class StudyStore:
                 return None
             folder = snapshots[-1][1]
             try:
-                return Snapshot(folder, json.loads((folder / "study.json").read_text()),
-                                json.loads((folder / "producers.json").read_text()))
+                return Snapshot(folder, json.loads(self._read(folder / "study.json")),
+                                json.loads(self._read(folder / "producers.json")))
             except FileNotFoundError:
                 continue
         raise RuntimeError(f"study {study_id}: snapshots keep disappearing while read")
@@ -157,7 +175,10 @@ class StudyStore:
         snapshot = self.snapshot(study_id)
         if snapshot is None:
             return None
-        return Study.load(snapshot.folder), snapshot.producers
+        return Study.load(self._fetched(snapshot.folder)), snapshot.producers
+
+    def _read(self, path: Path) -> str:
+        return self.store.cached(path).read_text()
 
     def save(self, study_id: str, study: Study, producers: list[str]) -> Path:
         """Save ``study`` as its newest snapshot; keep the one before (for readers still
@@ -168,12 +189,15 @@ class StudyStore:
             study.save(partial)
             (partial / "producers.json").write_text(json.dumps(producers))
             final = self.folder(study_id) / f"revisions-{count}"
+            self.store.share_folder(final, partial)
+            final.parent.mkdir(exist_ok=True)  # a study created on another host
             os.rename(partial, final)
         except BaseException:
             shutil.rmtree(partial, ignore_errors=True)
             raise
         for number, folder in self._snapshots(study_id):
             if number < count - 1:
+                self.store.unshare_folder(folder)
                 shutil.rmtree(folder, ignore_errors=True)
         return final
 

@@ -1,5 +1,6 @@
 """The record store under concurrency, on SQLite and PostgreSQL; the schema migration of a
-SQLite store made before the schema had a version; blobs shared through PostgreSQL."""
+SQLite store made before the schema had a version; blobs, artefacts and studies shared
+through PostgreSQL."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from sqlalchemy import select, text
 from fnsi.measurement import Measurement
 from service.schema import VERSION, objects, schema_version
 from service.store import JobState, Store
+from service.study_store import StudyStore
 from tests.service.databases import fresh_schema
 
 # Enough simultaneous callers that, without row locks, two of them would read the same
@@ -206,3 +208,29 @@ def test_deleting_on_one_host_removes_the_shared_objects(two_hosts):
 def test_shared_blobs_need_postgresql(tmp_path):
     with pytest.raises(ValueError, match="FNSI_DATABASE_URL=postgresql"):
         Store(tmp_path, None, "database")
+
+
+class _Snapshot:
+    """Stands in for fnsi.study.Study: ``save`` writes study.json, all StudyStore reads."""
+
+    def __init__(self, revisions: int) -> None:
+        self.revisions = [None] * revisions
+
+    def save(self, folder) -> None:
+        (folder / "study.json").write_text(json.dumps({"revisions": len(self.revisions)}))
+
+
+def test_a_study_made_on_one_host_is_read_and_revised_on_another(two_hosts):
+    a, b = (StudyStore(store) for store in two_hosts)
+    study = a.create("me", "chain", {"order": 4})
+    assert b.get(study.id) == study and b.owned_by("me") == [study]
+    assert b.owned_by("someone else") == []
+    b.save(study.id, _Snapshot(1), ["job_1"])  # revision 0, computed on host b
+    assert a.snapshot(study.id).study == {"revisions": 1}
+    for count in (2, 3):
+        a.save(study.id, _Snapshot(count), ["job"] * count)
+    seen = b.snapshot(study.id)
+    assert seen.study == {"revisions": 3} and seen.producers == ["job"] * 3
+    # the oldest snapshot is pruned from the shared objects too
+    assert sorted({name.split("/")[0] for name in b.store.shared_files(b.folder(study.id))
+                   if "/" in name}) == ["revisions-2", "revisions-3"]

@@ -3,9 +3,9 @@ sharing only PostgreSQL (records, blobs and artefacts) and Redis, as on four mac
 
 The end-to-end flow runs through both APIs in turn (each request to the next one, as
 behind a load balancer): a simulation and an identification computed on whichever worker
-takes them, every artefact downloaded through either API. Then every kind of process is
-killed and restarted while jobs run (a worker, an API, Redis, PostgreSQL): every job
-still succeeds, and none completes twice.
+takes them, every artefact downloaded through either API, a study revised twice at once.
+Then every kind of process is killed and restarted while jobs run (a worker, an API,
+Redis, PostgreSQL): every job still succeeds, and none completes twice.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from tests.service.servers import wait_for_job, wait_for_progress
 
 # The end-to-end tests, run here on this module's `stack`: the two-host deployment.
 from tests.service.test_end_to_end import (  # noqa: F401
+    IDENTIFICATION,
     datasets,
     identified,
     test_a_running_job_cancels_within_seconds,
@@ -93,3 +94,30 @@ def test_killing_every_kind_of_process_loses_no_job_and_runs_none_twice(stack, p
         produced = dict(db.execute("SELECT source_job, count(*) FROM datasets WHERE "
                                    "source_job = ANY(%s) GROUP BY source_job", (job_ids,)))
     assert produced == dict.fromkeys(job_ids, 1)
+
+
+def test_a_study_is_created_and_revised_through_both_apis_on_either_worker(
+        stack, datasets):  # noqa: F811 (the imported fixture)
+    """Study snapshots and their lock live in PostgreSQL: two revisions asked at once apply
+    one after the other whichever host computes them, and any API shows the history."""
+    estimation, validation = datasets
+    linear = {key: value for key, value in IDENTIFICATION.items() if key != "elements"}
+    with stack.client() as client:
+        created = client.post("/v1/studies", json={
+            **linear, "order": 4, "dataset_id": estimation,
+            "validation_dataset_id": validation, "name": "two hosts"})
+        assert created.status_code == 202, created.text
+        study_id = created.json()["id"]
+        revisions = [client.post(f"/v1/studies/{study_id}/revisions", json=body).json()["id"]
+                     for body in ({"add": IDENTIFICATION["elements"], "note": "cubic"},
+                                  {"order": 6})]
+        finals = [wait_for_job(client, job_id) for job_id in revisions]
+        assert [f["state"] for f in finals] == ["succeeded"] * 2, finals
+        views = [client.get(f"/v1/studies/{study_id}").json() for _ in stack.apis]
+    assert views[0] == views[1]
+    history = views[0]["history"]
+    assert [row["note"] for row in history] == ["starting model", "cubic", "order 6"]
+    # the cubic spring of the simulated chain explains most of the linear model's error
+    assert history[1]["nrmse_percent"] < history[0]["nrmse_percent"]
+    # the order change was computed on top of the cubic revision, not beside it
+    assert [e["kind"] for e in views[0]["revisions"][2]["elements"]] == ["polynomial"]
