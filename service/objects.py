@@ -1,5 +1,6 @@
-"""Shared objects: dataset blobs and job artefacts that every host reaches, kept in the
-PostgreSQL database of the records as large objects (FNSI_BLOB_STORE=database).
+"""Shared objects: dataset blobs, job artefacts and study snapshots that every host
+reaches, kept in the PostgreSQL database of the records as large objects
+(FNSI_BLOB_STORE=database).
 
 Without it the data directory is the only copy, so hosts must share it. With it the data
 directory of each host becomes a cache: the store writes a file there as before, then

@@ -124,7 +124,8 @@ class Settings(BaseSettings):
         "FNSI_DATA_DIR, for one machine.", examples=["postgresql://fnsi@127.0.0.1:5432/fnsi"])
 
     blob_store: Literal["folder", "database"] = Field(
-        "folder", description="Where dataset blobs and job artefacts are kept: `folder`, "
+        "folder", description="Where dataset blobs, job artefacts and study snapshots are "
+        "kept: `folder`, "
         "only in FNSI_DATA_DIR (every API and worker must share it, e.g. over NFS); "
         "`database`, in the PostgreSQL database of FNSI_DATABASE_URL as well, so hosts need "
         "no shared folder (each one's FNSI_DATA_DIR is then its own cache).")

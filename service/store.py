@@ -5,7 +5,9 @@ Celery workers all read and write it, never the broker's result backend. Records
 a database (:mod:`service.database`): SQLite in the data directory (atomic transactions,
 safe across processes on one host), or PostgreSQL (FNSI_DATABASE_URL) shared by API and
 worker processes on many hosts. Dataset arrays live in content-addressed canonical NPZ
-files, artefacts in one folder per job.
+files, artefacts in one folder per job; with FNSI_BLOB_STORE=database these files are
+also shared objects in PostgreSQL (:mod:`service.objects`), written in the transaction of
+the record that names them, and the data directory of each host is only their cache.
 
 Blobs and the upload cache are addressed by owner and content together: identical uploads
 of one API key share a blob, those of two keys never do, so an upload takes the same path
