@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from sqlalchemy import Connection, Engine, create_engine, event, text
+from sqlalchemy import Connection, Engine, create_engine, event, make_url, text
 from sqlalchemy.exc import InterfaceError, OperationalError
 
 from service.schema import migrate
@@ -121,9 +121,14 @@ class Database:
         self.engine = _engine(self.url)
         self.dialect = self.engine.dialect.name
         if self.url not in _migrated:
-            with self.transaction() as db:
-                self.lock_key(db, "schema")  # processes starting together migrate once
-                migrate(db)
+            try:
+                with self.transaction() as db:
+                    self.lock_key(db, "schema")  # processes starting together migrate once
+                    migrate(db)
+            except OperationalError as err:
+                shown = make_url(self.url).render_as_string(hide_password=True)
+                raise RuntimeError(f"cannot open the database {shown} ({err.orig}); start "
+                                   "it, or correct FNSI_DATABASE_URL") from err
             _migrated.add(self.url)
 
     @property

@@ -12,13 +12,16 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 from sqlalchemy import select, text
 
 from fnsi.measurement import Measurement
 from service.schema import VERSION, objects, schema_version
+from service.settings import Settings
 from service.store import JobState, Store
 from service.study_store import StudyStore
 from tests.service.databases import fresh_schema
+from tests.service.servers import free_port
 
 # Enough simultaneous callers that, without row locks, two of them would read the same
 # queued job before either writes (each claim is a read, a decision and a write).
@@ -234,3 +237,11 @@ def test_a_study_made_on_one_host_is_read_and_revised_on_another(two_hosts):
     # the oldest snapshot is pruned from the shared objects too
     assert sorted({name.split("/")[0] for name in b.store.shared_files(b.folder(study.id))
                    if "/" in name}) == ["revisions-2", "revisions-3"]
+
+
+def test_a_database_url_of_another_kind_or_out_of_reach_says_what_to_change(tmp_path):
+    with pytest.raises(ValidationError, match="must start with postgresql://"):
+        Settings(database_url="mysql://fnsi@db/fnsi")
+    with pytest.raises(RuntimeError, match="start it, or correct FNSI_DATABASE_URL") as err:
+        Store(tmp_path, f"postgresql://fnsi:secret@127.0.0.1:{free_port()}/fnsi")
+    assert "secret" not in str(err.value)  # the password is not shown
