@@ -189,7 +189,10 @@ class Database:
     @contextmanager
     def _advisory_lock(self, key: str, wait: Callable[[], None]) -> Iterator[None]:
         number = {"key": _lock_number(key)}
-        # A connection of its own, outside any transaction, kept while the lock is held.
+        # A connection of its own, outside any transaction, kept while the lock is held. A
+        # server restart ends the session and the lock with it: what the lock guards must
+        # not rely on it alone (a study's snapshots are never overwritten, so a revision
+        # that lost the lock cannot replace another's).
         with self.engine.connect() as db:
             db = db.execution_options(isolation_level="AUTOCOMMIT")
             while not db.execute(text("SELECT pg_try_advisory_lock(:key)"), number).scalar():

@@ -300,11 +300,21 @@ class Store:
                 self._share(db, path, source)
 
     def share_folder(self, folder: Path, source: Path) -> None:
-        """Share every file of the folder ``source`` as the files of ``folder`` (a folder
-        of the data directory), all or none (no-op without shared objects)."""
+        """Share every file of the folder ``source`` as the files of the new folder
+        ``folder`` of the data directory, all or none (no-op without shared objects).
+
+        Raises
+        ------
+        FileExistsError
+            ``folder`` is shared already (as renaming onto a full folder would).
+        """
         if self.objects is None:
             return
+        prefix = f"{self._key(folder)}/"
         with self.db.transaction() as db:
+            self.db.lock_key(db, prefix)
+            if self.objects.listing(db, prefix):
+                raise FileExistsError(f"{self._key(folder)} exists already")
             for file in sorted(source.iterdir()):
                 self._share(db, folder / file.name, file)
 

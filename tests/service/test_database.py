@@ -245,3 +245,15 @@ def test_a_database_url_of_another_kind_or_out_of_reach_says_what_to_change(tmp_
     with pytest.raises(RuntimeError, match="start it, or correct FNSI_DATABASE_URL") as err:
         Store(tmp_path, f"postgresql://fnsi:secret@127.0.0.1:{free_port()}/fnsi")
     assert "secret" not in str(err.value)  # the password is not shown
+
+
+def test_a_shared_study_snapshot_is_never_overwritten(two_hosts):
+    """Two revisions that both computed revision 1 (one lost the study's lock when the
+    database restarted): the second to save fails instead of replacing the first."""
+    a, b = (StudyStore(store) for store in two_hosts)
+    study = a.create("me", "chain", {})
+    a.save(study.id, _Snapshot(1), ["job_a"])
+    with pytest.raises(FileExistsError):
+        b.save(study.id, _Snapshot(1), ["job_b"])
+    assert b.snapshot(study.id).producers == ["job_a"]
+    assert list(b.store.tmp.iterdir()) == []
