@@ -87,6 +87,15 @@ def _forget_inherited_engines() -> None:
 os.register_at_fork(after_in_child=_forget_inherited_engines)
 
 
+def close_database(url: str) -> None:
+    """Close this process's pooled connections to ``url`` (a process that is done with a
+    database, e.g. a test with a database of its own)."""
+    engine = _engines.pop((url, os.getpid()), None)
+    if engine is not None:
+        engine.dispose()
+    _migrated.discard(url)
+
+
 def _lock_number(key: str) -> int:
     """Signed 64-bit number naming ``key`` for PostgreSQL's advisory locks."""
     return int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big", signed=True)

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from service.database import close_database
 from tests.redis_server import LocalRedis, redis_answers
 from tests.service.databases import fresh_schema, skip_without_postgres, temporary_database
 
@@ -54,11 +55,25 @@ def postgres_database() -> Iterator[str]:
         yield url
 
 
+@pytest.fixture
+def postgres_schemas(postgres_database) -> Iterator[Callable[[], str]]:
+    """Factory of fresh, empty PostgreSQL schemas (their URLs); the test's connections to
+    them are closed afterwards (the server's connections are shared with other users)."""
+    made = []
+
+    def make() -> str:
+        made.append(fresh_schema(postgres_database))
+        return made[-1]
+
+    yield make
+    for url in made:
+        close_database(url)
+
+
 @pytest.fixture(params=["sqlite", "postgresql"])
 def database(request) -> Callable[[], str | None]:
     """Each store-level and API-level test runs on both record stores: a factory of fresh,
     empty databases (None: SQLite in the data dir)."""
     if request.param == "sqlite":
         return lambda: None
-    url = request.getfixturevalue("postgres_database")
-    return lambda: fresh_schema(url)
+    return request.getfixturevalue("postgres_schemas")

@@ -20,7 +20,6 @@ from service.schema import VERSION, objects, schema_version
 from service.settings import Settings
 from service.store import JobState, Store
 from service.study_store import StudyStore
-from tests.service.databases import fresh_schema
 from tests.service.servers import free_port
 
 # Enough simultaneous callers that, without row locks, two of them would read the same
@@ -160,10 +159,10 @@ def test_a_store_from_before_schema_versions_is_migrated_keeping_ids_and_cursors
 
 
 @pytest.fixture
-def two_hosts(tmp_path, postgres_database) -> tuple[Store, Store]:
+def two_hosts(tmp_path, postgres_schemas) -> tuple[Store, Store]:
     """Two stores on separate data folders sharing one PostgreSQL database and its blobs,
     as an API and a worker on two machines."""
-    url = fresh_schema(postgres_database)
+    url = postgres_schemas()
     return (Store(tmp_path / "host-a", url, "database"),
             Store(tmp_path / "host-b", url, "database"))
 
