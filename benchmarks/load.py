@@ -15,7 +15,10 @@ Two scenarios, each against real processes on this machine:
   all are terminal; reports jobs per minute, poll and submission latency.
 
 Celery stacks use the Redis at FNSI_REDIS_URL (default redis://127.0.0.1:6379, database
-13, flushed afterwards). The last output line is one JSON object with the figures
+13, flushed afterwards). ``--database postgresql`` keeps records, blobs and artefacts in a
+PostgreSQL database made for the run on the server of FNSI_TEST_POSTGRES_URL (default
+postgresql://postgres@127.0.0.1:5432/test) and dropped afterwards; the default is SQLite
+in the data folder. The last output line is one JSON object with the figures
 (``poll_p50_ms``, ``poll_p99_ms``, the load average of the machine, ...).
 
 Run from the repository root (it reuses the test suite's server helpers):
@@ -31,6 +34,7 @@ import json
 import os
 import tempfile
 import time
+from contextlib import nullcontext
 from pathlib import Path
 from urllib.parse import urlsplit, urlunsplit
 
@@ -38,6 +42,7 @@ import httpx
 import numpy as np
 import redis
 
+from tests.service.databases import temporary_database
 from tests.service.servers import Stack, service_env, wait_for_job, wait_for_progress
 from tests.service.test_simulations import REQUEST as MODEL_SIMULATION
 
@@ -58,11 +63,15 @@ def redis_url() -> str:
     return urlunsplit(parts._replace(path=f"/{LOAD_REDIS_DB}"))
 
 
-def start(data_dir: Path, stack_kind: str, workers: int, job_nice: int) -> Stack:
-    """API and job processes with production lease and supervisor periods (not the tests')."""
+def start(data_dir: Path, stack_kind: str, workers: int, job_nice: int,
+          database_url: str | None = None) -> Stack:
+    """API and job processes with production lease and supervisor periods (not the tests');
+    with ``database_url``, records and blobs in that PostgreSQL database."""
     data_dir.mkdir(parents=True)
     broker = {"FNSI_BROKER_URL": redis_url()} if stack_kind == "celery" else {}
-    env = service_env(data_dir, **broker)
+    shared = ({"FNSI_DATABASE_URL": database_url, "FNSI_BLOB_STORE": "database"}
+              if database_url else {})
+    env = service_env(data_dir, **broker, **shared)
     env.update(FNSI_LEASE_SECONDS="30", FNSI_SUPERVISOR_INTERVAL="5",
                FNSI_QUEUE_NAME=f"fnsi-load-{os.getpid()}", FNSI_JOB_NICE=str(job_nice),
                FNSI_EMBEDDED_WORKERS=str(workers))
@@ -74,10 +83,10 @@ def start(data_dir: Path, stack_kind: str, workers: int, job_nice: int) -> Stack
     return stack
 
 
-def percentiles(latencies: list[float]) -> dict[str, float]:
+def percentiles(latencies: list[float], what: str = "poll") -> dict[str, float]:
     """p50 and p99 [ms] of latencies [s]."""
-    return {"poll_p50_ms": round(1e3 * float(np.median(latencies)), 1),
-            "poll_p99_ms": round(1e3 * float(np.percentile(latencies, 99)), 1)}
+    return {f"{what}_p50_ms": round(1e3 * float(np.median(latencies)), 1),
+            f"{what}_p99_ms": round(1e3 * float(np.percentile(latencies, 99)), 1)}
 
 
 async def poller(url: str, job_ids: list[str], k: int, poll: float, until: float,
@@ -172,7 +181,7 @@ async def load(url: str, dataset_id: str, jobs: int, clients: int, poll: float) 
     return {"jobs": jobs, "finished": sum(j["state"] in TERMINAL for j in finals),
             "failed": sum(j["state"] == "failed" for j in finals),
             "throughput_jobs_per_min": round(60 * len(finals) / span, 1),
-            **percentiles(polls)}
+            **percentiles(polls), **percentiles(submits, "submit")}
 
 
 def throughput(stack: Stack, workers: int, jobs: int, clients: int, poll: float) -> dict:
@@ -193,6 +202,9 @@ def main() -> None:
     parser.add_argument("--scenario", choices=("polls", "throughput"), default="polls")
     parser.add_argument("--stack", choices=("embedded", "celery"), default="embedded",
                         help="embedded runner, or fnsi-worker processes on Redis")
+    parser.add_argument("--database", choices=("sqlite", "postgresql"), default="sqlite",
+                        help="records (and, with postgresql, blobs) in SQLite in the data "
+                        "folder, or in a PostgreSQL database made for the run")
     parser.add_argument("--workers", type=int, default=2, help="job processes")
     parser.add_argument("--clients", type=int, default=20)
     parser.add_argument("--poll", type=float, default=0.5, help="seconds between requests")
@@ -202,11 +214,13 @@ def main() -> None:
     parser.add_argument("--job-nice", type=int, default=10,
                         help="FNSI_JOB_NICE of the job processes (0: the API's priority)")
     args = parser.parse_args()
-    print(f"{args.scenario} on {args.stack}: {args.clients} clients, {args.workers} job "
+    print(f"{args.scenario} on {args.stack}, {args.database}: {args.clients} clients, "
+          f"{args.workers} job "
           f"processes at nice {args.job_nice}, requests every {args.poll} s; load average "
           f"(1 min) {os.getloadavg()[0]:.2f}")
-    with tempfile.TemporaryDirectory(prefix="fnsi-load-") as folder:
-        stack = start(Path(folder) / "data", args.stack, args.workers, args.job_nice)
+    database = temporary_database() if args.database == "postgresql" else nullcontext()
+    with tempfile.TemporaryDirectory(prefix="fnsi-load-") as folder, database as url:
+        stack = start(Path(folder) / "data", args.stack, args.workers, args.job_nice, url)
         try:
             if args.scenario == "polls":
                 summary = polls_while_computing(stack, args.workers, args.clients, args.poll,
@@ -218,7 +232,7 @@ def main() -> None:
             if args.stack == "celery":
                 redis.Redis.from_url(redis_url()).flushdb()  # the benchmark's own database
     print(json.dumps({"scenario": args.scenario, "stack": args.stack,
-                      "job_nice": args.job_nice, **summary}))
+                      "database": args.database, "job_nice": args.job_nice, **summary}))
 
 
 if __name__ == "__main__":

@@ -87,7 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        store = Store(settings.data_dir)
+        store = Store.from_settings(settings)
         queue = make_queue(settings, store)
         supervisor = Supervisor(settings, store, queue)
         app.state.settings, app.state.store, app.state.queue = settings, store, queue

@@ -211,7 +211,11 @@ class CeleryQueue:
             log.warning("broker unreachable: job %s stays queued and is published by the "
                         "supervisor when the broker answers", job_id, exc_info=True)
             return
-        self.store.mark_enqueued(job_id)
+        try:
+            self.store.mark_enqueued(job_id)
+        except Exception:  # database out of reach: the supervisor publishes it again later
+            log.warning("job %s published but its publication time was not stored",
+                        job_id, exc_info=True)
 
     def resubmit_stale(self) -> list[StaleJob]:
         """Publish again the jobs never published, or published longer than

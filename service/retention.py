@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
 
+from service.schema import STUDY_JOB_KINDS
 from service.settings import Settings
 from service.store import Store
-from service.study_store import STUDY_JOB_KINDS
 
 
 def delete_expired_jobs(settings: Settings, store: Store) -> list[str]:

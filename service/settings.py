@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+from service.database import check_database_url
 
 
 class Settings(BaseSettings):
@@ -115,6 +117,23 @@ class Settings(BaseSettings):
         None, gt=0, description="Finished jobs (not those of a study) are deleted with their "
         "artefacts this many days [d] after they finished, by the API's supervisor. Unset: "
         "kept until deleted with DELETE /v1/jobs/{id}.", examples=[30])
+    # -- issue 24, beyond one machine: records in PostgreSQL
+    database_url: str | None = Field(
+        None, description="Database of the job store's records, shared by every API and "
+        "worker process (e.g. postgresql://fnsi@db.lab:5432/fnsi). Unset: SQLite in "
+        "FNSI_DATA_DIR, for one machine.", examples=["postgresql://fnsi@127.0.0.1:5432/fnsi"])
+
+    blob_store: Literal["folder", "database"] = Field(
+        "folder", description="Where dataset blobs, job artefacts and study snapshots are "
+        "kept: `folder`, "
+        "only in FNSI_DATA_DIR (every API and worker must share it, e.g. over NFS); "
+        "`database`, in the PostgreSQL database of FNSI_DATABASE_URL as well, so hosts need "
+        "no shared folder (each one's FNSI_DATA_DIR is then its own cache).")
+
+    @field_validator("database_url")
+    @classmethod
+    def _supported_database(cls, value: str | None) -> str | None:
+        return None if value is None else check_database_url(value)
 
 
 @lru_cache

@@ -2,8 +2,12 @@
 
 The store is the single source of truth for job state: the API, the embedded runner and
 Celery workers all read and write it, never the broker's result backend. Records live in
-one SQLite database (atomic transactions, safe across processes on one host); dataset
-arrays live in content-addressed canonical NPZ files, artefacts in one folder per job.
+a database (:mod:`service.database`): SQLite in the data directory (atomic transactions,
+safe across processes on one host), or PostgreSQL (FNSI_DATABASE_URL) shared by API and
+worker processes on many hosts. Dataset arrays live in content-addressed canonical NPZ
+files, artefacts in one folder per job; with FNSI_BLOB_STORE=database these files are
+also shared objects in PostgreSQL (:mod:`service.objects`), written in the transaction of
+the record that names them, and the data directory of each host is only their cache.
 
 Blobs and the upload cache are addressed by owner and content together: identical uploads
 of one API key share a blob, those of two keys never do, so an upload takes the same path
@@ -12,7 +16,7 @@ whether another holds a given file).
 
 Layout::
 
-    <data_dir>/fnsi.sqlite3          records
+    <data_dir>/fnsi.sqlite3          records (without FNSI_DATABASE_URL)
     <data_dir>/blobs/<digest>.npz    canonical datasets (shared by one owner's identical uploads)
     <data_dir>/blobs/<digest>.csv    CSV rendering of a blob, made on first download
     <data_dir>/jobs/<job_id>/        artefacts of a job
@@ -28,7 +32,6 @@ import os
 import re
 import secrets
 import shutil
-import sqlite3
 import tempfile
 import threading
 import time
@@ -38,41 +41,24 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
+from sqlalchemy import ColumnElement, Connection, RowMapping, delete, insert, select, update
+from sqlalchemy.dialects import postgresql, sqlite
 
 from fnsi.measurement import Measurement
 from fnsi.summary import summarize
+from service.database import Database, sqlite_url
+from service.objects import DatabaseObjects
+from service.schema import STUDY_JOB_KINDS, batches, blobs, datasets, jobs, store_info, uploads
+
+if TYPE_CHECKING:
+    from service.settings import Settings
 
 ARTEFACT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
 # CSV renderings run one at a time per lock; a blob always takes the same lock.
 _RENDER_LOCKS = 16
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS blobs (
-    digest TEXT PRIMARY KEY, summary TEXT NOT NULL, size INTEGER NOT NULL);
-CREATE TABLE IF NOT EXISTS uploads (
-    upload_key TEXT PRIMARY KEY, digest TEXT NOT NULL REFERENCES blobs(digest));
-CREATE TABLE IF NOT EXISTS datasets (
-    id TEXT PRIMARY KEY, owner TEXT NOT NULL, digest TEXT NOT NULL REFERENCES blobs(digest),
-    name TEXT NOT NULL, source_job TEXT, created_at TEXT NOT NULL);
-CREATE INDEX IF NOT EXISTS datasets_by_owner ON datasets(owner);
-CREATE TABLE IF NOT EXISTS jobs (
-    seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT UNIQUE NOT NULL, owner TEXT NOT NULL,
-    kind TEXT NOT NULL, state TEXT NOT NULL, progress REAL NOT NULL DEFAULT 0,
-    message TEXT NOT NULL DEFAULT '', request TEXT NOT NULL, result TEXT, error TEXT,
-    created_at TEXT NOT NULL, started_at TEXT, finished_at TEXT,
-    attempts INTEGER NOT NULL DEFAULT 0, lease_until REAL,
-    cancel_requested INTEGER NOT NULL DEFAULT 0, batch_id TEXT, enqueued_at REAL);
-CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, seq);
-CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state);
-CREATE INDEX IF NOT EXISTS jobs_by_finish ON jobs(finished_at);
-CREATE TABLE IF NOT EXISTS batches (
-    id TEXT PRIMARY KEY, owner TEXT NOT NULL, idempotency_key TEXT, request_hash TEXT NOT NULL,
-    job_ids TEXT NOT NULL, created_at TEXT NOT NULL, UNIQUE (owner, idempotency_key));
-"""
-
 
 class JobState(StrEnum):
     """Life cycle of a job: queued -> running -> succeeded | failed | cancelled."""
@@ -171,7 +157,22 @@ class IdempotencyConflictError(ValueError):
     """An Idempotency-Key was reused with a different request body."""
 
 
-def _job(row: sqlite3.Row) -> JobRecord:
+class LeaseLostError(RuntimeError):
+    """An attempt no longer holds its job: its lease lapsed (e.g. the database was out of
+    reach for longer than the lease) and the job was re-queued or ended. The attempt must
+    stop and store nothing, so that at most one attempt of a job completes."""
+
+    def __init__(self, job_id: str, attempt: int) -> None:
+        super().__init__(f"job {job_id}: attempt {attempt} lost its lease")
+
+
+def _running(job_id: str, attempt: int | None) -> ColumnElement[bool]:
+    """The job is running (``attempt``: that attempt)."""
+    condition = (jobs.c.id == job_id) & (jobs.c.state == JobState.RUNNING.value)
+    return condition if attempt is None else condition & (jobs.c.attempts == attempt)
+
+
+def _job(row: RowMapping) -> JobRecord:
     return JobRecord(
         seq=row["seq"], id=row["id"], owner=row["owner"], kind=row["kind"],
         state=JobState(row["state"]), progress=row["progress"], message=row["message"],
@@ -184,11 +185,11 @@ def _job(row: sqlite3.Row) -> JobRecord:
     )
 
 
-_DATASETS = ("SELECT d.*, d.rowid AS seq, b.summary, b.size FROM datasets d "
-             "JOIN blobs b ON b.digest = d.digest")
+_DATASETS = select(datasets, blobs.c.summary, blobs.c.size).join_from(
+    datasets, blobs, datasets.c.digest == blobs.c.digest)
 
 
-def _dataset(row: sqlite3.Row) -> DatasetRecord:
+def _dataset(row: RowMapping) -> DatasetRecord:
     return DatasetRecord(
         id=row["id"], owner=row["owner"], digest=row["digest"], name=row["name"],
         created_at=row["created_at"], summary=json.loads(row["summary"]),
@@ -214,15 +215,22 @@ def _owned_digest(owner: str, digest: str) -> str:
 
 
 class Store:
-    """File and SQLite store rooted at ``data_dir`` (created if missing).
+    """File and database store rooted at ``data_dir`` (created if missing).
 
     Parameters
     ----------
     data_dir : Path
-        Root directory, shared by the API and the workers.
+        Root directory of the files, shared by the API and the workers.
+    database_url : str, optional
+        Database of the records (``postgresql://...``); default: SQLite in ``data_dir``.
+    blob_store : {"folder", "database"}
+        Where blobs and artefacts are kept: only in ``data_dir`` (hosts share it), or also
+        in the PostgreSQL database, ``data_dir`` being this host's cache
+        (:mod:`service.objects`).
     """
 
-    def __init__(self, data_dir: Path) -> None:
+    def __init__(self, data_dir: Path, database_url: str | None = None,
+                 blob_store: str = "folder") -> None:
         self.root = Path(data_dir).resolve()
         self.blobs = self.root / "blobs"
         self.jobs_dir = self.root / "jobs"
@@ -230,43 +238,34 @@ class Store:
         for d in (self.root, self.blobs, self.jobs_dir, self.tmp):
             d.mkdir(parents=True, exist_ok=True)
         self.db_path = self.root / "fnsi.sqlite3"
+        self.db = Database(database_url or sqlite_url(self.db_path))
+        if blob_store == "database" and not self.db.shared:
+            raise ValueError("FNSI_BLOB_STORE=database keeps blobs in the PostgreSQL database: "
+                             "set FNSI_DATABASE_URL=postgresql://... as well")
+        self.objects = DatabaseObjects() if blob_store == "database" else None
         self._render_locks = [threading.Lock() for _ in range(_RENDER_LOCKS)]
-        with self._connect() as db:
-            db.execute("PRAGMA journal_mode=WAL")
-            db.executescript(_SCHEMA)
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> Store:
+        """The store of :class:`service.settings.Settings` (data dir, database, blobs)."""
+        return cls(settings.data_dir, settings.database_url, settings.blob_store)
 
     @functools.cached_property
     def instance_id(self) -> str:
-        """Random id of this store, made on first use (file ``store-id``): tells apart two
-        data directories, e.g. a worker started with another FNSI_DATA_DIR than its API."""
-        path = self.root / "store-id"
-        if not path.exists():
-            with self.partial_file() as partial:
-                partial.write_text(new_id("store"))
-                with suppress(FileExistsError):  # a concurrent first use won
-                    os.link(partial, path)  # atomic: never a half-written id
-        return path.read_text()
-
-    @contextmanager
-    def _connect(self) -> Iterator[sqlite3.Connection]:
-        db = sqlite3.connect(self.db_path, timeout=30.0, isolation_level=None)
-        db.row_factory = sqlite3.Row
-        try:
-            yield db
-        finally:
-            db.close()
-
-    @contextmanager
-    def _transaction(self) -> Iterator[sqlite3.Connection]:
-        """Write transaction holding the database lock from the start (no lost updates)."""
-        with self._connect() as db:
-            db.execute("BEGIN IMMEDIATE")
-            try:
-                yield db
-            except BaseException:
-                db.execute("ROLLBACK")
-                raise
-            db.execute("COMMIT")
+        """Random id of this store's records, made on first use: tells apart two stores,
+        e.g. a worker started with another FNSI_DATABASE_URL (or, on SQLite, another
+        FNSI_DATA_DIR) than its API. A store made before the id moved into the database
+        keeps the id of its file ``store-id``."""
+        legacy = self.root / "store-id"
+        with self.db.transaction() as db:
+            self.db.lock_key(db, "store-id")
+            found = db.execute(select(store_info.c.value).where(store_info.c.key == "id"))
+            value = found.scalar()
+            if value is None:
+                value = legacy.read_text() if legacy.is_file() and not self.db.shared else (
+                    new_id("store"))
+                db.execute(insert(store_info).values(key="id", value=value))
+        return value
 
     def temp_path(self, suffix: str = "") -> Path:
         """A fresh path in the store's tmp folder (same file system as the data)."""
@@ -283,6 +282,70 @@ class Store:
         finally:
             path.unlink(missing_ok=True)
 
+    # -- shared objects (FNSI_BLOB_STORE=database) -------------------------------------------
+    def _key(self, path: Path) -> str:
+        """Object key of a file of the data directory: its relative path."""
+        return path.relative_to(self.root).as_posix()
+
+    def _share(self, db: Connection, path: Path, source: Path | None = None) -> None:
+        """Copy the file ``path`` (read from ``source`` if given) into the shared objects,
+        in the transaction of ``db``."""
+        if self.objects is not None:
+            self.objects.put(db, self._key(path), source or path)
+
+    def share_file(self, path: Path, source: Path) -> None:
+        """Share the file ``source`` as the file ``path`` of the data directory (no-op
+        without shared objects)."""
+        if self.objects is not None:
+            with self.db.transaction() as db:
+                self._share(db, path, source)
+
+    def share_folder(self, folder: Path, source: Path) -> None:
+        """Share every file of the folder ``source`` as the files of the new folder
+        ``folder`` of the data directory, all or none (no-op without shared objects).
+
+        Raises
+        ------
+        FileExistsError
+            ``folder`` is shared already (as renaming onto a full folder would).
+        """
+        if self.objects is None:
+            return
+        prefix = f"{self._key(folder)}/"
+        with self.db.transaction() as db:
+            self.db.lock_key(db, prefix)
+            if self.objects.listing(db, prefix):
+                raise FileExistsError(f"{self._key(folder)} exists already")
+            for file in sorted(source.iterdir()):
+                self._share(db, folder / file.name, file)
+
+    def unshare_folder(self, folder: Path) -> None:
+        """Remove the shared objects of the files of ``folder`` (no-op without them)."""
+        if self.objects is not None:
+            with self.db.transaction() as db:
+                self.objects.delete_under(db, f"{self._key(folder)}/")
+
+    def shared_files(self, folder: Path) -> list[str] | None:
+        """Relative paths of the shared files under ``folder``; None without shared
+        objects (the data directory is then the only copy)."""
+        if self.objects is None:
+            return None
+        with self.db.read() as db:
+            return [name for name, _ in self.objects.listing(db, f"{self._key(folder)}/")]
+
+    def _fetch(self, path: Path) -> None:
+        """Put the shared object of ``path`` in place in this host's data directory."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with self.partial_file(path.suffix) as partial, self.db.read() as db:
+            if self.objects.fetch(db, self._key(path), partial):
+                os.replace(partial, path)
+
+    def cached(self, path: Path) -> Path:
+        """``path`` of an immutable file, fetched first if this host does not have it."""
+        if self.objects is not None and not path.exists():
+            self._fetch(path)
+        return path
+
     # -- datasets ---------------------------------------------------------------------------
     def blob_path(self, digest: str) -> Path:
         """Canonical NPZ file of a dataset blob."""
@@ -291,12 +354,17 @@ class Store:
     def dataset_for_upload(self, upload_key: str, owner: str, name: str) -> DatasetRecord | None:
         """New dataset sharing the blob of an identical earlier upload of ``owner``, if
         there was one."""
-        with self._transaction() as db:
-            row = db.execute("SELECT digest FROM uploads WHERE upload_key = ?",
-                             (_owned_digest(owner, upload_key),)).fetchone()
-            if row is None:
+        key = _owned_digest(owner, upload_key)
+        with self.db.transaction() as db:
+            digest = db.execute(select(uploads.c.digest).where(uploads.c.upload_key == key)
+                                ).scalar()
+            if digest is None:
                 return None
-            return self._insert_dataset(db, owner, row["digest"], name, None)
+            self.db.lock_key(db, f"blob:{digest}")  # against delete_dataset of its last user
+            if db.execute(select(uploads.c.digest).where(uploads.c.upload_key == key)
+                          ).scalar() is None:
+                return None
+            return self._insert_dataset(db, owner, digest, name, None)
 
     def put_measurement(self, measurement: Measurement, *, owner: str, name: str,
                         periods_source: str = "declared", upload_key: str | None = None,
@@ -318,50 +386,61 @@ class Store:
             # by a concurrent identical upload is simply replaced.
             with open(partial, "wb") as f:
                 measurement.to_npz(f)
-            with self._transaction() as db:
-                known = db.execute("SELECT 1 FROM blobs WHERE digest = ?", (digest,)).fetchone()
-                if known is None:
+            with self.db.transaction() as db:
+                self.db.lock_key(db, f"blob:{digest}")
+                if not self._blob_known(db, digest):
                     os.replace(partial, path)
-                    db.execute("INSERT INTO blobs (digest, summary, size) VALUES (?, ?, ?)",
-                               (digest, json.dumps(summary), path.stat().st_size))
+                    self._share(db, path)
+                    db.execute(insert(blobs).values(digest=digest, summary=json.dumps(summary),
+                                                    size=path.stat().st_size))
                 if upload_key is not None:
-                    db.execute("INSERT OR REPLACE INTO uploads (upload_key, digest) "
-                               "VALUES (?, ?)", (_owned_digest(owner, upload_key), digest))
+                    self._remember_upload(db, _owned_digest(owner, upload_key), digest)
                 return self._insert_dataset(db, owner, digest, name, source_job)
 
-    def _insert_dataset(self, db: sqlite3.Connection, owner: str, digest: str, name: str,
+    @staticmethod
+    def _blob_known(db: Connection, digest: str) -> bool:
+        return db.execute(select(blobs.c.digest).where(blobs.c.digest == digest)
+                          ).first() is not None
+
+    @staticmethod
+    def _remember_upload(db: Connection, upload_key: str, digest: str) -> None:
+        """Point ``upload_key`` at ``digest`` (insert, or replace an earlier answer)."""
+        dialect = postgresql if db.dialect.name == "postgresql" else sqlite
+        statement = dialect.insert(uploads).values(upload_key=upload_key, digest=digest)
+        db.execute(statement.on_conflict_do_update(index_elements=[uploads.c.upload_key],
+                                                   set_={"digest": digest}))
+
+    def _insert_dataset(self, db: Connection, owner: str, digest: str, name: str,
                         source_job: str | None) -> DatasetRecord:
         dataset_id = new_id("ds")
-        db.execute("INSERT INTO datasets (id, owner, digest, name, source_job, created_at) "
-                   "VALUES (?, ?, ?, ?, ?, ?)",
-                   (dataset_id, owner, digest, name, source_job, now_iso()))
+        db.execute(insert(datasets).values(id=dataset_id, owner=owner, digest=digest, name=name,
+                                           source_job=source_job, created_at=now_iso()))
         return self._dataset_row(db, dataset_id)
 
     @staticmethod
-    def _dataset_row(db: sqlite3.Connection, dataset_id: str) -> DatasetRecord | None:
-        row = db.execute(f"{_DATASETS} WHERE d.id = ?", (dataset_id,)).fetchone()
+    def _dataset_row(db: Connection, dataset_id: str) -> DatasetRecord | None:
+        row = db.execute(_DATASETS.where(datasets.c.id == dataset_id)).mappings().first()
         return None if row is None else _dataset(row)
 
     def list_datasets(self, owner: str, *, before_seq: int | None = None,
                       limit: int = 50) -> list[DatasetRecord]:
         """Datasets of ``owner``, newest first; ``before_seq`` pages."""
-        sql, args = f"{_DATASETS} WHERE d.owner = ?", [owner]
+        query = _DATASETS.where(datasets.c.owner == owner)
         if before_seq is not None:
-            sql += " AND d.rowid < ?"
-            args.append(before_seq)
-        with self._connect() as db:
-            rows = db.execute(f"{sql} ORDER BY d.rowid DESC LIMIT ?", [*args, limit])
-            return [_dataset(r) for r in rows.fetchall()]
+            query = query.where(datasets.c.seq < before_seq)
+        with self.db.read() as db:
+            rows = db.execute(query.order_by(datasets.c.seq.desc()).limit(limit)).mappings()
+            return [_dataset(r) for r in rows]
 
     def dataset_of_job(self, job_id: str) -> DatasetRecord | None:
         """Dataset produced by a simulation job, if it stored one."""
-        with self._connect() as db:
-            row = db.execute("SELECT id FROM datasets WHERE source_job = ?", (job_id,)).fetchone()
-            return None if row is None else self._dataset_row(db, row["id"])
+        with self.db.read() as db:
+            row = db.execute(_DATASETS.where(datasets.c.source_job == job_id)).mappings().first()
+            return None if row is None else _dataset(row)
 
     def get_dataset(self, dataset_id: str) -> DatasetRecord | None:
         """Dataset record, or None if unknown."""
-        with self._connect() as db:
+        with self.db.read() as db:
             return self._dataset_row(db, dataset_id)
 
     def load_measurement(self, dataset_id: str) -> Measurement:
@@ -369,21 +448,25 @@ class Store:
         record = self.get_dataset(dataset_id)
         if record is None:
             raise ValueError(f"dataset {dataset_id} does not exist (deleted?); upload it again")
-        return Measurement.from_npz(self.blob_path(record.digest))
+        return Measurement.from_npz(self.cached(self.blob_path(record.digest)))
 
     def delete_dataset(self, dataset_id: str) -> None:
         """Remove a dataset; its blob goes when no other dataset shares it."""
-        with self._transaction() as db:
-            row = db.execute("SELECT digest FROM datasets WHERE id = ?", (dataset_id,)).fetchone()
-            if row is None:
+        with self.db.transaction() as db:
+            digest = db.execute(select(datasets.c.digest).where(datasets.c.id == dataset_id)
+                                ).scalar()
+            if digest is None:
                 return
-            digest = row["digest"]
-            db.execute("DELETE FROM datasets WHERE id = ?", (dataset_id,))
-            shared = db.execute("SELECT 1 FROM datasets WHERE digest = ? LIMIT 1",
-                                (digest,)).fetchone()
+            self.db.lock_key(db, f"blob:{digest}")
+            if not db.execute(delete(datasets).where(datasets.c.id == dataset_id)).rowcount:
+                return  # deleted meanwhile by another request
+            shared = db.execute(select(datasets.c.id).where(datasets.c.digest == digest)
+                                .limit(1)).first()
             if shared is None:
-                db.execute("DELETE FROM uploads WHERE digest = ?", (digest,))
-                db.execute("DELETE FROM blobs WHERE digest = ?", (digest,))
+                db.execute(delete(uploads).where(uploads.c.digest == digest))
+                db.execute(delete(blobs).where(blobs.c.digest == digest))
+                if self.objects is not None:
+                    self.objects.delete(db, [self._key(self.blob_path(digest))])
                 # Inside the lock, so a concurrent identical upload cannot lose its file.
                 self.blob_path(digest).unlink(missing_ok=True)
                 self.blob_path(digest).with_suffix(".csv").unlink(missing_ok=True)
@@ -395,7 +478,7 @@ class Store:
         removes the name, not the data), so a download is complete or never starts.
         """
         with suppress(FileNotFoundError):
-            return open(self.blob_path(record.digest), "rb")
+            return open(self.cached(self.blob_path(record.digest)), "rb")
         return None
 
     def open_csv(self, record: DatasetRecord) -> BinaryIO | None:
@@ -422,11 +505,11 @@ class Store:
         with self.partial_file(".csv") as partial:
             with open(partial, "w") as f:  # slow: outside the database lock
                 measurement.to_csv(f)
-            with self._transaction() as db:
+            with self.db.transaction() as db:
                 # Put in place only if the blob still exists (delete_dataset removes the
                 # rendering in this lock), and opened before the lock is released.
-                if db.execute("SELECT 1 FROM blobs WHERE digest = ?",
-                              (record.digest,)).fetchone():
+                self.db.lock_key(db, f"blob:{record.digest}")
+                if self._blob_known(db, record.digest):
                     os.replace(partial, path)
                     return open(path, "rb")
         return None
@@ -434,60 +517,67 @@ class Store:
     # -- jobs -------------------------------------------------------------------------------
     def create_job(self, owner: str, kind: str, request: dict[str, Any]) -> JobRecord:
         """Record a queued job."""
-        with self._transaction() as db:
+        with self.db.transaction() as db:
             job_id = self._insert_job(db, owner, kind, request, None)
             return self._job_row(db, job_id)
 
     @staticmethod
-    def _insert_job(db: sqlite3.Connection, owner: str, kind: str, request: dict[str, Any],
+    def _insert_job(db: Connection, owner: str, kind: str, request: dict[str, Any],
                     batch_id: str | None) -> str:
         job_id = new_id("job")
-        db.execute("INSERT INTO jobs (id, owner, kind, state, message, request, created_at, "
-                   "batch_id) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                   (job_id, owner, kind, JobState.QUEUED, "waiting for a worker",
-                    json.dumps(request), now_iso(), batch_id))
+        study_id = request.get("study_id") if kind in STUDY_JOB_KINDS else None
+        db.execute(insert(jobs).values(
+            id=job_id, owner=owner, kind=kind, state=JobState.QUEUED.value,
+            message="waiting for a worker", request=json.dumps(request), created_at=now_iso(),
+            batch_id=batch_id, study_id=study_id))
         return job_id
 
     @staticmethod
-    def _job_row(db: sqlite3.Connection, job_id: str) -> JobRecord | None:
-        row = db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
+    def _job_row(db: Connection, job_id: str, *, lock: bool = False) -> JobRecord | None:
+        """The job; ``lock``: row-locked to the end of the transaction (PostgreSQL)."""
+        query = select(jobs).where(jobs.c.id == job_id)
+        row = db.execute(query.with_for_update() if lock else query).mappings().first()
         return None if row is None else _job(row)
 
     def get_job(self, job_id: str) -> JobRecord | None:
         """Job record, or None if unknown."""
-        with self._connect() as db:
+        with self.db.read() as db:
             return self._job_row(db, job_id)
 
     def list_jobs(self, owner: str, *, state: str | None = None, kind: str | None = None,
                   before_seq: int | None = None, limit: int = 50) -> list[JobRecord]:
         """Jobs of ``owner``, newest first, optionally filtered; ``before_seq`` pages."""
-        sql, args = "SELECT * FROM jobs WHERE owner = ?", [owner]
-        for column, value in (("state", state), ("kind", kind)):
+        query = select(jobs).where(jobs.c.owner == owner)
+        for column, value in ((jobs.c.state, state), (jobs.c.kind, kind)):
             if value is not None:
-                sql += f" AND {column} = ?"
-                args.append(value)
+                query = query.where(column == value)
         if before_seq is not None:
-            sql += " AND seq < ?"
-            args.append(before_seq)
-        sql += " ORDER BY seq DESC LIMIT ?"
-        args.append(limit)
-        with self._connect() as db:
-            return [_job(r) for r in db.execute(sql, args).fetchall()]
+            query = query.where(jobs.c.seq < before_seq)
+        with self.db.read() as db:
+            rows = db.execute(query.order_by(jobs.c.seq.desc()).limit(limit)).mappings()
+            return [_job(r) for r in rows]
+
+    def jobs_of_study(self, study_id: str, owner: str) -> list[JobRecord]:
+        """Every job of ``owner`` acting on the study ``study_id``, oldest first."""
+        query = select(jobs).where(jobs.c.study_id == study_id, jobs.c.owner == owner)
+        with self.db.read() as db:
+            return [_job(r) for r in db.execute(query.order_by(jobs.c.seq)).mappings()]
 
     def mark_enqueued(self, job_id: str) -> None:
         """Remember when a job was last handed to the queue."""
-        with self._transaction() as db:
-            db.execute("UPDATE jobs SET enqueued_at = ? WHERE id = ?", (time.time(), job_id))
+        with self.db.transaction() as db:
+            db.execute(update(jobs).where(jobs.c.id == job_id).values(enqueued_at=time.time()))
 
     def stale_queued(self, older_than: float) -> list[StaleJob]:
         """Queued jobs never handed to the queue (the broker was unreachable), or last
         handed over more than ``older_than`` seconds ago (their message may be lost:
         broker restarted, or consumed by a foreign worker)."""
         now = time.time()
-        with self._connect() as db:
-            rows = db.execute("SELECT id, attempts, created_at, enqueued_at FROM jobs "
-                              "WHERE state = ? AND (enqueued_at IS NULL OR enqueued_at < ?) "
-                              "ORDER BY seq", (JobState.QUEUED, now - older_than)).fetchall()
+        query = select(jobs.c.id, jobs.c.attempts, jobs.c.created_at, jobs.c.enqueued_at).where(
+            jobs.c.state == JobState.QUEUED.value,
+            jobs.c.enqueued_at.is_(None) | (jobs.c.enqueued_at < now - older_than))
+        with self.db.read() as db:
+            rows = db.execute(query.order_by(jobs.c.seq)).mappings().all()
         return [StaleJob(r["id"], r["attempts"],
                          now - datetime.fromisoformat(r["created_at"]).timestamp(),
                          None if r["enqueued_at"] is None else now - r["enqueued_at"])
@@ -495,9 +585,9 @@ class Store:
 
     def jobs_in_state(self, state: JobState) -> list[JobRecord]:
         """Every job in ``state``, oldest first (used to resume after a restart)."""
-        with self._connect() as db:
-            rows = db.execute("SELECT * FROM jobs WHERE state = ? ORDER BY seq", (state,))
-            return [_job(r) for r in rows.fetchall()]
+        query = select(jobs).where(jobs.c.state == JobState(state).value).order_by(jobs.c.seq)
+        with self.db.read() as db:
+            return [_job(r) for r in db.execute(query).mappings()]
 
     def claim(self, job_id: str, *, lease_seconds: float, max_attempts: int) -> Claim:
         """Atomically start an attempt of a job, so that a redelivered task runs at most once.
@@ -506,8 +596,8 @@ class Store:
         A running job whose lease is alive belongs to another worker: retry after the lease.
         """
         now = time.time()
-        with self._transaction() as db:
-            job = self._job_row(db, job_id)
+        with self.db.transaction() as db:
+            job = self._job_row(db, job_id, lock=True)
             if job is None:
                 return Claim(False, reason="unknown job")
             if job.state in TERMINAL:
@@ -520,81 +610,96 @@ class Store:
             if job.attempts >= max_attempts:
                 self._finish(db, job_id, JobState.FAILED, error=_lost_reason(job.attempts))
                 return Claim(False, reason="attempts exhausted")
-            db.execute("UPDATE jobs SET state = ?, attempts = attempts + 1, lease_until = ?, "
-                       "started_at = ?, progress = 0, message = ? WHERE id = ?",
-                       (JobState.RUNNING, now + lease_seconds, now_iso(),
-                        f"started (attempt {job.attempts + 1})", job_id))
+            db.execute(update(jobs).where(jobs.c.id == job_id).values(
+                state=JobState.RUNNING.value, attempts=jobs.c.attempts + 1,
+                lease_until=now + lease_seconds, started_at=now_iso(), progress=0.0,
+                message=f"started (attempt {job.attempts + 1})"))
             return Claim(True, attempt=job.attempts + 1)
 
     def report(self, job_id: str, *, lease_seconds: float, progress: float | None = None,
-               message: str | None = None) -> bool:
-        """Renew the lease of a running job, optionally with progress; True if cancel asked."""
-        with self._transaction() as db:
-            db.execute("UPDATE jobs SET lease_until = ?, progress = COALESCE(?, progress), "
-                       "message = COALESCE(?, message) WHERE id = ? AND state = ?",
-                       (time.time() + lease_seconds, progress, message, job_id,
-                        JobState.RUNNING))
-            row = db.execute("SELECT cancel_requested FROM jobs WHERE id = ?",
-                             (job_id,)).fetchone()
-            return bool(row and row["cancel_requested"])
+               message: str | None = None, attempt: int | None = None) -> bool:
+        """Renew the lease of a running job, optionally with progress; True if cancel asked.
+
+        Raises
+        ------
+        LeaseLostError
+            ``attempt`` given and the job is no longer running that attempt.
+        """
+        changes: dict[str, Any] = {"lease_until": time.time() + lease_seconds}
+        if progress is not None:
+            changes["progress"] = progress
+        if message is not None:
+            changes["message"] = message
+        with self.db.transaction() as db:
+            renewed = db.execute(update(jobs).where(_running(job_id, attempt)).values(changes))
+            if attempt is not None and renewed.rowcount == 0:
+                raise LeaseLostError(job_id, attempt)
+            return bool(db.execute(select(jobs.c.cancel_requested).where(jobs.c.id == job_id)
+                                   ).scalar())
 
     def finish(self, job_id: str, state: JobState, *, result: dict | None = None,
-               error: str | None = None, message: str = "") -> None:
-        """End a running job (terminal state, result or error)."""
-        with self._transaction() as db:
+               error: str | None = None, message: str = "", attempt: int | None = None
+               ) -> None:
+        """End a running job (terminal state, result or error); with ``attempt``, only if
+        the job still runs that attempt, else :class:`LeaseLostError`."""
+        with self.db.transaction() as db:
+            if attempt is not None and db.execute(
+                    select(jobs.c.id).where(_running(job_id, attempt)).with_for_update()
+            ).first() is None:
+                raise LeaseLostError(job_id, attempt)
             self._finish(db, job_id, state, result=result, error=error, message=message)
 
     @staticmethod
-    def _finish(db: sqlite3.Connection, job_id: str, state: JobState, *, result=None,
+    def _finish(db: Connection, job_id: str, state: JobState, *, result=None,
                 error=None, message: str = "") -> None:
-        progress = 1.0 if state == JobState.SUCCEEDED else None
-        db.execute("UPDATE jobs SET state = ?, result = ?, error = ?, finished_at = ?, "
-                   "lease_until = NULL, progress = COALESCE(?, progress), message = ? "
-                   "WHERE id = ?",
-                   (state, json.dumps(result) if result is not None else None, error,
-                    now_iso(), progress, message or state.value, job_id))
+        db.execute(update(jobs).where(jobs.c.id == job_id).values(
+            state=state.value, result=json.dumps(result) if result is not None else None,
+            error=error, finished_at=now_iso(), lease_until=None,
+            progress=1.0 if state == JobState.SUCCEEDED else jobs.c.progress,
+            message=message or state.value))
 
     def request_cancel(self, job_id: str) -> JobRecord:
         """Cancel a queued job at once; flag a running one (its task stops at next report)."""
-        with self._transaction() as db:
-            job = self._job_row(db, job_id)
+        with self.db.transaction() as db:
+            job = self._job_row(db, job_id, lock=True)
             if job.state == JobState.QUEUED:
                 self._finish(db, job_id, JobState.CANCELLED, message="cancelled before start")
             elif job.state == JobState.RUNNING:
-                db.execute("UPDATE jobs SET cancel_requested = 1, message = ? WHERE id = ?",
-                           ("cancellation requested", job_id))
+                db.execute(update(jobs).where(jobs.c.id == job_id).values(
+                    cancel_requested=True, message="cancellation requested"))
             return self._job_row(db, job_id)
 
     def delete_job(self, job_id: str) -> bool:
         """Delete a finished job with its artefacts; False if it is not finished (or gone)."""
-        return bool(self._delete_finished("id = ?", (job_id,)))
+        return bool(self._delete_finished(jobs.c.id == job_id))
 
     def delete_jobs_finished_before(self, time_iso: str, keep_kinds: tuple[str, ...]
                                     ) -> list[str]:
         """Delete the jobs finished before ``time_iso`` (ISO 8601 UTC) with their artefacts,
         except those of ``keep_kinds``; their ids."""
-        marks = ", ".join("?" * len(keep_kinds))
-        return self._delete_finished(f"finished_at < ? AND kind NOT IN ({marks})",
-                                     (time_iso, *keep_kinds))
+        return self._delete_finished((jobs.c.finished_at < time_iso)
+                                     & jobs.c.kind.not_in(keep_kinds))
 
-    def _delete_finished(self, condition: str, args: tuple[Any, ...]) -> list[str]:
-        """Delete the finished jobs matching an SQL ``condition``; their ids.
+    def _delete_finished(self, condition: ColumnElement[bool]) -> list[str]:
+        """Delete the finished jobs matching ``condition``; their ids.
 
         Artefact folders are moved to tmp/ inside the lock, with the records, and removed
         after it: no listing ever sees a job without its folder or a folder without its
         job, and a crash leaves only scratch files behind.
         """
         removed, doomed = [], []
-        with self._transaction() as db:
-            states = ", ".join("?" * len(TERMINAL))
-            rows = db.execute(f"SELECT id FROM jobs WHERE state IN ({states}) AND {condition}",
-                              (*TERMINAL, *args)).fetchall()
-            for row in rows:
-                db.execute("DELETE FROM jobs WHERE id = ?", (row["id"],))
-                removed.append(row["id"])
-                folder = self.artefact_dir(row["id"])
+        finished = [state.value for state in TERMINAL]
+        with self.db.transaction() as db:
+            rows = db.execute(select(jobs.c.id).where(jobs.c.state.in_(finished), condition)
+                              .with_for_update(skip_locked=True)).scalars().all()
+            for job_id in rows:
+                db.execute(delete(jobs).where(jobs.c.id == job_id))
+                if self.objects is not None:
+                    self.objects.delete_under(db, f"{self._key(self.artefact_dir(job_id))}/")
+                removed.append(job_id)
+                folder = self.artefact_dir(job_id)
                 if folder.is_dir():
-                    doomed.append(Path(tempfile.mkdtemp(dir=self.tmp)) / row["id"])
+                    doomed.append(Path(tempfile.mkdtemp(dir=self.tmp)) / job_id)
                     os.replace(folder, doomed[-1])
         for folder in doomed:
             shutil.rmtree(folder.parent, ignore_errors=True)
@@ -609,19 +714,20 @@ class Store:
             Ids of the re-queued jobs, to be handed to the queue again.
         """
         requeued = []
-        with self._transaction() as db:
-            rows = db.execute("SELECT * FROM jobs WHERE state = ? AND lease_until < ?",
-                              (JobState.RUNNING, time.time())).fetchall()
+        expired = select(jobs).where(jobs.c.state == JobState.RUNNING.value,
+                                     jobs.c.lease_until < time.time())
+        with self.db.transaction() as db:
+            rows = db.execute(expired.with_for_update(skip_locked=True)).mappings().all()
             for job in map(_job, rows):
                 if job.cancel_requested:
                     self._finish(db, job.id, JobState.CANCELLED, message="cancelled")
                 elif job.attempts >= max_attempts:
                     self._finish(db, job.id, JobState.FAILED, error=_lost_reason(job.attempts))
                 else:
-                    db.execute("UPDATE jobs SET state = ?, lease_until = NULL, progress = 0, "
-                               "message = ? WHERE id = ?",
-                               (JobState.QUEUED, f"re-queued: its worker stopped during "
-                                f"attempt {job.attempts} of {max_attempts}", job.id))
+                    db.execute(update(jobs).where(jobs.c.id == job.id).values(
+                        state=JobState.QUEUED.value, lease_until=None, progress=0.0,
+                        message=f"re-queued: its worker stopped during attempt "
+                                f"{job.attempts} of {max_attempts}"))
                     requeued.append(job.id)
         return requeued
 
@@ -642,10 +748,13 @@ class Store:
             The key was used before with a different request.
         """
         request_hash = hashlib.sha256(json.dumps(jobs, sort_keys=True).encode()).hexdigest()
-        with self._transaction() as db:
+        with self.db.transaction() as db:
             if idempotency_key is not None:
-                row = db.execute("SELECT * FROM batches WHERE owner = ? AND idempotency_key = ?",
-                                 (owner, idempotency_key)).fetchone()
+                # Two concurrent retries: the second waits here, then finds the first batch.
+                self.db.lock_key(db, f"batch:{owner}:{idempotency_key}")
+                row = db.execute(select(batches).where(
+                    batches.c.owner == owner, batches.c.idempotency_key == idempotency_key)
+                ).mappings().first()
                 if row is not None:
                     if row["request_hash"] != request_hash:
                         raise IdempotencyConflictError(
@@ -654,23 +763,24 @@ class Store:
                     return _batch(row), False
             batch_id = new_id("batch")
             job_ids = [self._insert_job(db, owner, kind, req, batch_id) for kind, req in jobs]
-            db.execute("INSERT INTO batches (id, owner, idempotency_key, request_hash, job_ids, "
-                       "created_at) VALUES (?, ?, ?, ?, ?, ?)",
-                       (batch_id, owner, idempotency_key, request_hash, json.dumps(job_ids),
-                        now_iso()))
-            row = db.execute("SELECT * FROM batches WHERE id = ?", (batch_id,)).fetchone()
+            db.execute(insert(batches).values(
+                id=batch_id, owner=owner, idempotency_key=idempotency_key,
+                request_hash=request_hash, job_ids=json.dumps(job_ids), created_at=now_iso()))
+            row = db.execute(select(batches).where(batches.c.id == batch_id)).mappings().one()
             return _batch(row), True
 
     def get_batch(self, batch_id: str) -> BatchRecord | None:
         """Batch record, or None if unknown."""
-        with self._connect() as db:
-            row = db.execute("SELECT * FROM batches WHERE id = ?", (batch_id,)).fetchone()
+        with self.db.read() as db:
+            row = db.execute(select(batches).where(batches.c.id == batch_id)).mappings().first()
             return None if row is None else _batch(row)
 
     def jobs_of(self, job_ids: list[str]) -> list[JobRecord]:
         """Job records in the order of ``job_ids`` (deleted jobs left out)."""
-        with self._connect() as db:
-            return [job for j in job_ids if (job := self._job_row(db, j)) is not None]
+        with self.db.read() as db:
+            found = {row["id"]: _job(row) for row in db.execute(
+                select(jobs).where(jobs.c.id.in_(job_ids))).mappings()}
+        return [found[j] for j in job_ids if j in found]
 
     # -- artefacts --------------------------------------------------------------------------
     def artefact_dir(self, job_id: str) -> Path:
@@ -686,19 +796,30 @@ class Store:
         with self.partial_file() as partial:
             partial.write_bytes(data)
             os.replace(partial, folder / name)
+        if self.objects is not None:
+            with self.db.transaction() as db:
+                self._share(db, folder / name)
 
     def list_artefacts(self, job_id: str) -> list[tuple[str, int]]:
         """(name, size in bytes) of every artefact of a job, sorted by name."""
         folder = self.artefact_dir(job_id)
-        if not folder.is_dir():
-            return []
-        return sorted((p.name, p.stat().st_size) for p in folder.iterdir()
-                      if p.is_file() and ARTEFACT_NAME.match(p.name))
+        if self.objects is not None:
+            with self.db.read() as db:
+                found = self.objects.listing(db, f"{self._key(folder)}/")
+        elif folder.is_dir():
+            found = [(p.name, p.stat().st_size) for p in folder.iterdir() if p.is_file()]
+        else:
+            found = []
+        return sorted((name, size) for name, size in found if ARTEFACT_NAME.match(name))
 
     def artefact_path(self, job_id: str, name: str) -> Path | None:
         """Path of an artefact found by listing (a name is never used as a path)."""
-        listed = {n for n, _ in self.list_artefacts(job_id)}
-        return self.artefact_dir(job_id) / name if name in listed else None
+        if name not in {n for n, _ in self.list_artefacts(job_id)}:
+            return None
+        path = self.artefact_dir(job_id) / name
+        if self.objects is not None:
+            self._fetch(path)  # always: a new attempt of the job may have replaced it
+        return path
 
     def open_artefact(self, job_id: str, name: str) -> BinaryIO | None:
         """An artefact found by listing, opened for reading; None if the job has no such
@@ -710,7 +831,7 @@ class Store:
         return None
 
 
-def _batch(row: sqlite3.Row) -> BatchRecord:
+def _batch(row: RowMapping) -> BatchRecord:
     return BatchRecord(id=row["id"], owner=row["owner"], idempotency_key=row["idempotency_key"],
                        request_hash=row["request_hash"], job_ids=json.loads(row["job_ids"]),
                        created_at=row["created_at"])

@@ -5,9 +5,14 @@ job. Its state is kept as immutable snapshots written by :meth:`fnsi.study.Study
 into the store's tmp folder and renamed into place, so a reader always sees a complete
 study and a job that dies while saving leaves the previous revision intact. Jobs of a
 study are ordinary jobs whose request names it (``study_id``); their order is the job
-sequence of the store. Revision jobs take the study's lock (``flock``, released by the
-kernel when a worker dies), so two revisions never read the same state and overwrite
-each other's result.
+sequence of the store. Revision jobs take the study's lock (:meth:`Database.held_lock
+<service.database.Database.held_lock>`: ``flock`` on SQLite, an advisory lock on
+PostgreSQL; both released when a worker dies), so two revisions never read the same
+state and overwrite each other's result.
+
+With FNSI_BLOB_STORE=database every file below is also a shared object (a snapshot's
+files all in one transaction, before it is renamed into place), and each host's folder
+is a cache of them: hosts share studies without sharing a folder.
 
 Layout::
 
@@ -20,16 +25,14 @@ Layout::
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import re
 import shutil
-import sqlite3
 import tempfile
 import time
 from collections.abc import Callable, Iterator
-from contextlib import closing, contextmanager
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -40,8 +43,6 @@ from service.store import JobRecord, Store, new_id, now_iso
 
 STUDY_ID = re.compile(r"^study_[0-9a-f]{20}$")
 _SNAPSHOT = re.compile(r"^revisions-(?P<count>[0-9]+)$")
-STUDY_JOB_KINDS = ("study", "study_revision", "study_diagnosis")
-"""Job kinds acting on a study: creation (revision 0), a revision, a diagnosis."""
 # How often [s] a job waiting for the study's lock or earlier revisions looks again.
 _WAIT_INTERVAL = 0.5
 
@@ -104,6 +105,7 @@ class StudyStore:
         folder.mkdir()
         with self.store.partial_file(".json") as partial:
             partial.write_text(json.dumps(asdict(record)))
+            self.store.share_file(folder / "record.json", partial)
             os.replace(partial, folder / "record.json")
         return record
 
@@ -111,7 +113,7 @@ class StudyStore:
         """The study's record, or None if there is no such study."""
         if not STUDY_ID.match(study_id):
             return None
-        path = self.folder(study_id) / "record.json"
+        path = self.store.cached(self.folder(study_id) / "record.json")
         if not path.is_file():
             return None
         return StudyRecord(**json.loads(path.read_text()))
@@ -121,9 +123,12 @@ class StudyStore:
         """Studies of ``owner``, newest first (by creation time, then id); ``before`` pages
         with the ``(created_at, id)`` of the last study of the previous page. Reads every
         study's record: meant for a lab's hundreds of studies, not for millions."""
+        shared = self.store.shared_files(self.root)
+        study_ids = ({name.split("/")[0] for name in shared} if shared is not None
+                     else {folder.name for folder in self.root.iterdir()})
         records = []
-        for folder in self.root.iterdir():
-            record = self.get(folder.name)
+        for study_id in sorted(study_ids):
+            record = self.get(study_id)
             if record is not None and record.owner == owner:
                 records.append(record)
         records.sort(key=lambda r: (r.created_at, r.id), reverse=True)
@@ -132,20 +137,25 @@ class StudyStore:
         return records[:limit]
 
     def jobs(self, study_id: str, owner: str) -> list[JobRecord]:
-        """Every job of the study, oldest first (read-only query of the job table)."""
-        marks = ", ".join("?" * len(STUDY_JOB_KINDS))
-        with closing(sqlite3.connect(self.store.db_path, timeout=30.0)) as db:
-            rows = db.execute(f"SELECT id FROM jobs WHERE owner = ? AND kind IN ({marks}) "
-                              "AND json_extract(request, '$.study_id') = ? ORDER BY seq",
-                              (owner, *STUDY_JOB_KINDS, study_id)).fetchall()
-        return self.store.jobs_of([row[0] for row in rows])
+        """Every job of the study, oldest first."""
+        return self.store.jobs_of_study(study_id, owner)
 
     # -- snapshots --------------------------------------------------------------------------
     def _snapshots(self, study_id: str) -> list[tuple[int, Path]]:
         folder = self.folder(study_id)
-        found = [(int(m["count"]), p) for p in folder.iterdir()
-                 if (m := _SNAPSHOT.match(p.name)) and p.is_dir()] if folder.is_dir() else []
-        return sorted(found)
+        shared = self.store.shared_files(folder)
+        if shared is not None:
+            names = {name.split("/")[0] for name in shared if "/" in name}
+        else:
+            names = {p.name for p in folder.iterdir() if p.is_dir()} if folder.is_dir() else set()
+        return sorted((int(m["count"]), folder / name) for name in names
+                      if (m := _SNAPSHOT.match(name)))
+
+    def _fetched(self, folder: Path) -> Path:
+        """A snapshot folder with all its files on this host (snapshots never change)."""
+        for name in self.store.shared_files(folder) or []:
+            self.store.cached(folder / name)
+        return folder
 
     def snapshot(self, study_id: str) -> Snapshot | None:
         """The latest saved state, or None before revision 0 is saved."""
@@ -155,8 +165,8 @@ class StudyStore:
                 return None
             folder = snapshots[-1][1]
             try:
-                return Snapshot(folder, json.loads((folder / "study.json").read_text()),
-                                json.loads((folder / "producers.json").read_text()))
+                return Snapshot(folder, json.loads(self._read(folder / "study.json")),
+                                json.loads(self._read(folder / "producers.json")))
             except FileNotFoundError:
                 continue
         raise RuntimeError(f"study {study_id}: snapshots keep disappearing while read")
@@ -166,7 +176,10 @@ class StudyStore:
         snapshot = self.snapshot(study_id)
         if snapshot is None:
             return None
-        return Study.load(snapshot.folder), snapshot.producers
+        return Study.load(self._fetched(snapshot.folder)), snapshot.producers
+
+    def _read(self, path: Path) -> str:
+        return self.store.cached(path).read_text()
 
     def save(self, study_id: str, study: Study, producers: list[str]) -> Path:
         """Save ``study`` as its newest snapshot; keep the one before (for readers still
@@ -177,12 +190,15 @@ class StudyStore:
             study.save(partial)
             (partial / "producers.json").write_text(json.dumps(producers))
             final = self.folder(study_id) / f"revisions-{count}"
+            self.store.share_folder(final, partial)
+            final.parent.mkdir(exist_ok=True)  # a study created on another host
             os.rename(partial, final)
         except BaseException:
             shutil.rmtree(partial, ignore_errors=True)
             raise
         for number, folder in self._snapshots(study_id):
             if number < count - 1:
+                self.store.unshare_folder(folder)
                 shutil.rmtree(folder, ignore_errors=True)
         return final
 
@@ -190,18 +206,9 @@ class StudyStore:
     def locked(self, study_id: str, wait: Callable[[], None]) -> Iterator[None]:
         """Hold the study's lock; ``wait()`` is called between tries (it may raise to
         give up, e.g. when the job is cancelled)."""
-        with open(self.folder(study_id) / "lock", "a") as handle:
-            while True:
-                try:
-                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    break
-                except BlockingIOError:
-                    wait()
-                    time.sleep(_WAIT_INTERVAL)
-            try:
-                yield
-            finally:
-                fcntl.flock(handle, fcntl.LOCK_UN)
+        with self.store.db.held_lock(f"study:{study_id}", self.folder(study_id) / "lock",
+                                     wait):
+            yield
 
     def wait_for_earlier_revisions(self, job: JobRecord, wait: Callable[[str], None]) -> None:
         """Return once every revision job of the study submitted before ``job`` ended, so

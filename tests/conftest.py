@@ -11,10 +11,13 @@ the ``dev`` extra.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterator
 
 import pytest
 
+from service.database import close_database
 from tests.redis_server import LocalRedis, redis_answers
+from tests.service.databases import fresh_schema, skip_without_postgres, temporary_database
 
 DEFAULT_REDIS_URL = "redis://127.0.0.1:6379/0"
 
@@ -42,3 +45,35 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 
 
 _REDIS_NOTE = pytest.StashKey[str]()
+
+
+@pytest.fixture(scope="session")
+def postgres_database() -> Iterator[str]:
+    """A PostgreSQL database of this test session (skips the test without a server)."""
+    skip_without_postgres()
+    with temporary_database() as url:
+        yield url
+
+
+@pytest.fixture
+def postgres_schemas(postgres_database) -> Iterator[Callable[[], str]]:
+    """Factory of fresh, empty PostgreSQL schemas (their URLs); the test's connections to
+    them are closed afterwards (the server's connections are shared with other users)."""
+    made = []
+
+    def make() -> str:
+        made.append(fresh_schema(postgres_database))
+        return made[-1]
+
+    yield make
+    for url in made:
+        close_database(url)
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def database(request) -> Callable[[], str | None]:
+    """Each store-level and API-level test runs on both record stores: a factory of fresh,
+    empty databases (None: SQLite in the data dir)."""
+    if request.param == "sqlite":
+        return lambda: None
+    return request.getfixturevalue("postgres_schemas")

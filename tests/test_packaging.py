@@ -36,16 +36,22 @@ def test_fnsi_imports_without_the_service_layers() -> None:
     assert done.returncode == 0, done.stderr
 
 
-def test_compose_runs_persistent_redis_and_scalable_workers() -> None:
+def test_compose_runs_postgres_persistent_redis_and_scalable_apis_and_workers() -> None:
     compose = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
     services = compose["services"]
     redis_command = " ".join(services["redis"]["command"])
     assert "--appendonly yes" in redis_command
     assert "--maxmemory-policy noeviction" in redis_command
     assert any(v.startswith("redis-data:") for v in services["redis"]["volumes"])
-    worker = services["worker"]
-    # `--scale worker=N` fails on a fixed container name or a published port.
-    assert "container_name" not in worker and "ports" not in worker
-    data_volume = "fnsi-data:/data"
-    assert data_volume in worker["volumes"] and data_volume in services["api"]["volumes"]
-    assert set(compose["volumes"]) == {"redis-data", "fnsi-data"}
+    assert any(v.startswith("postgres-data:") for v in services["postgres"]["volumes"])
+    for name in ("api", "worker"):
+        service = services[name]
+        # `--scale api=N worker=M` fails on a fixed container name or a published port.
+        assert "container_name" not in service and "ports" not in service
+        # no shared folder: records and blobs in PostgreSQL
+        assert "volumes" not in service
+        env = service["environment"]
+        assert env["FNSI_DATABASE_URL"].startswith("postgresql://")
+        assert "@postgres:" in env["FNSI_DATABASE_URL"] and env["FNSI_BLOB_STORE"] == "database"
+    assert services["proxy"]["ports"] == ["8000:8000"]
+    assert set(compose["volumes"]) == {"redis-data", "postgres-data"}

@@ -77,12 +77,13 @@ def refuse_foreign(task: Task, store: str | None, settings: Settings) -> None:
     celery.exceptions.Reject
         With ``requeue``, so that a worker on the right FNSI_DATA_DIR runs the job.
     """
-    ours = Store(settings.data_dir).instance_id
+    ours = Store.from_settings(settings).instance_id
     if store is None or store == ours:
         return
     log.error("FNSI_DATA_DIR %s is not the data directory of the API that queued this job "
               "(its store is %s, this one %s): returning the message and consuming no more; "
-              "restart fnsi-worker with the API's FNSI_DATA_DIR (a shared mount)",
+              "restart fnsi-worker with the API's FNSI_DATA_DIR (a shared mount) or, when "
+              "the API keeps its records in PostgreSQL, with its FNSI_DATABASE_URL",
               settings.data_dir, store, ours)
     task.app.control.cancel_consumer(settings.queue_name, destination=[task.request.hostname])
     raise Reject(f"foreign FNSI_DATA_DIR {settings.data_dir}", requeue=True)

@@ -7,6 +7,10 @@ behaves identically on both. The job store is the single source of truth:
   visibility timeout, a requeue after a lost worker) never runs a job twice at once;
 * a heartbeat thread renews the lease while the attempt runs, so a killed process is
   noticed when its lease expires and the job is re-queued or failed, never left running;
+* every write of an attempt names it (its attempt number): an attempt that lost its lease
+  while the database was out of reach (the job was re-queued meanwhile) stops and stores
+  nothing, so at most one attempt of a job completes; a database outage shorter than the
+  lease costs nothing (reports are retried, the outcome is stored once it answers);
 * the progress callback handed to the library stores progress and raises
   :class:`JobCancelledError` once a cancel was requested, or :class:`JobTimeLimitError` past the
   time limit, which stops the computation at its next report.
@@ -22,8 +26,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from service.database import unreachable
 from service.settings import Settings
-from service.store import Claim, JobRecord, JobState, Store
+from service.store import Claim, JobRecord, JobState, LeaseLostError, Store
 from worker.job_process import exit_if_orphaned
 
 log = logging.getLogger("fnsi.worker")
@@ -46,6 +51,9 @@ Task = Callable[[JobContext], dict[str, Any]]
 
 # Progress is written at most this often [s]; libraries may report every few ms.
 _REPORT_INTERVAL = 0.25
+# How long [s] an ended attempt keeps trying to store its outcome while the database is
+# out of reach (a restart takes seconds); after that the job's lease lapses and it re-runs.
+_OUTCOME_PATIENCE = 300.0
 
 
 class JobCancelledError(Exception):
@@ -59,10 +67,11 @@ class JobTimeLimitError(Exception):
 class Attempt:
     """A running attempt: lease heartbeat, throttled progress, cancel and deadline checks."""
 
-    def __init__(self, store: Store, job_id: str, settings: Settings) -> None:
-        self.store, self.job_id, self.settings = store, job_id, settings
+    def __init__(self, store: Store, job_id: str, number: int, settings: Settings) -> None:
+        self.store, self.job_id, self.number, self.settings = store, job_id, number, settings
         self.deadline = time.monotonic() + settings.job_time_limit
         self.cancelled = threading.Event()
+        self.lost = threading.Event()
         self._stop = threading.Event()
         self._last_report = 0.0
         self._heartbeat = threading.Thread(target=self._beat, daemon=True,
@@ -79,18 +88,33 @@ class Attempt:
     def _beat(self) -> None:
         while not self._stop.wait(self.settings.lease_seconds / 4):
             exit_if_orphaned(self.job_id)  # before renewing: an orphan's lease must lapse
-            if self.store.report(self.job_id, lease_seconds=self.settings.lease_seconds):
+            self._report()
+
+    def _report(self, **progress: Any) -> None:
+        """Renew the lease (with ``progress`` and ``message``); note a cancel or a lost
+        lease. A database out of reach is only logged: the next report tries again."""
+        try:
+            if self.store.report(self.job_id, lease_seconds=self.settings.lease_seconds,
+                                 attempt=self.number, **progress):
                 self.cancelled.set()
+        except LeaseLostError:
+            self.lost.set()
+        except Exception as err:
+            if not unreachable(err):
+                raise
+            log.warning("job %s: database out of reach, lease not renewed (%s)",
+                        self.job_id, type(err).__name__)
 
     def progress(self, fraction: float, message: str) -> None:
-        """Callback for the library: record progress, stop if cancelled or out of time."""
+        """Callback for the library: record progress, stop if cancelled, lost or out of
+        time."""
         now = time.monotonic()
         if now - self._last_report >= _REPORT_INTERVAL or fraction >= 1.0:
             self._last_report = now
             fraction = min(max(float(fraction), 0.0), 1.0)
-            if self.store.report(self.job_id, lease_seconds=self.settings.lease_seconds,
-                                 progress=fraction, message=str(message)[:500]):
-                self.cancelled.set()
+            self._report(progress=fraction, message=str(message)[:500])
+        if self.lost.is_set():
+            raise LeaseLostError(self.job_id, self.number)
         if self.cancelled.is_set():
             raise JobCancelledError
         if now > self.deadline:
@@ -117,7 +141,7 @@ def run_job(job_id: str, settings: Settings, tasks: dict[str, Task],
     Claim
         What the claim decided; ``retry_after`` set when another worker holds the lease.
     """
-    store = Store(settings.data_dir)
+    store = Store.from_settings(settings)
     claim = store.claim(job_id, lease_seconds=settings.lease_seconds,
                         max_attempts=settings.max_attempts)
     if not claim.run:
@@ -127,24 +151,64 @@ def run_job(job_id: str, settings: Settings, tasks: dict[str, Task],
         return claim
     job = store.get_job(job_id)
     log.info("job %s (%s) attempt %d started", job_id, job.kind, claim.attempt)
-    with Attempt(store, job_id, settings) as attempt:
+    with Attempt(store, job_id, claim.attempt, settings) as attempt:
         try:
-            result = tasks[job.kind](JobContext(store, job, attempt.progress, settings))
-        except JobCancelledError:
-            store.finish(job_id, JobState.CANCELLED, message="cancelled while running")
-        except (JobTimeLimitError, *time_limit_errors):
-            store.finish(job_id, JobState.FAILED, error=(
-                f"the job exceeded the time limit of {settings.job_time_limit:g} s; submit a "
-                "smaller problem (fewer samples, outputs or a lower max_order) or ask the "
-                "operator to raise FNSI_JOB_TIME_LIMIT"))
-        except ValueError as err:  # the library's message names the fault and the fix
-            store.finish(job_id, JobState.FAILED, error=str(err))
-        except Exception as err:
-            store.finish(job_id, JobState.FAILED, error=_unexpected(job_id, err))
-        else:
-            store.finish(job_id, JobState.SUCCEEDED, result=result, message="done")
+            outcome = _outcome(tasks[job.kind], JobContext(store, job, attempt.progress,
+                                                           settings), time_limit_errors)
+            if outcome is not None:
+                _store_outcome(store, attempt, *outcome)
+        except LeaseLostError:
+            log.warning("job %s: attempt %d lost its lease (the job was re-queued while the "
+                        "database was out of reach); stopped, nothing stored", job_id,
+                        claim.attempt)
     log.info("job %s ended", job_id)
     return claim
+
+
+def _outcome(task: Task, context: JobContext,
+             time_limit_errors: tuple[type[BaseException], ...]
+             ) -> tuple[JobState, dict[str, Any]] | None:
+    """How the attempt ended: the job's state and what to store with it; None when the
+    database went out of reach during the task (the attempt is abandoned: its lease lapses
+    and the job runs again)."""
+    settings = context.settings
+    try:
+        result = task(context)
+    except JobCancelledError:
+        return JobState.CANCELLED, {"message": "cancelled while running"}
+    except (JobTimeLimitError, *time_limit_errors):
+        return JobState.FAILED, {"error": (
+            f"the job exceeded the time limit of {settings.job_time_limit:g} s; submit a "
+            "smaller problem (fewer samples, outputs or a lower max_order) or ask the "
+            "operator to raise FNSI_JOB_TIME_LIMIT")}
+    except ValueError as err:  # the library's message names the fault and the fix
+        return JobState.FAILED, {"error": str(err)}
+    except LeaseLostError:
+        raise
+    except Exception as err:
+        if unreachable(err):
+            log.warning("job %s: database out of reach during the task; attempt abandoned, "
+                        "the job re-runs once its lease lapses", context.job.id)
+            return None
+        return JobState.FAILED, {"error": _unexpected(context.job.id, err)}
+    return JobState.SUCCEEDED, {"result": result, "message": "done"}
+
+
+def _store_outcome(store: Store, attempt: Attempt, state: JobState,
+                   outcome: dict[str, Any]) -> None:
+    """Finish the job as ``attempt``, waiting out a database restart (the heartbeat keeps
+    the lease meanwhile); LeaseLostError if the job was re-queued in between."""
+    deadline = time.monotonic() + _OUTCOME_PATIENCE
+    while True:
+        try:
+            store.finish(attempt.job_id, state, attempt=attempt.number, **outcome)
+            log.info("job %s attempt %d stored its outcome: %s", attempt.job_id,
+                     attempt.number, state.value)
+            return
+        except Exception as err:
+            if not unreachable(err) or time.monotonic() > deadline:
+                raise
+            time.sleep(1.0)
 
 
 def _unexpected(job_id: str, err: Exception) -> str:

@@ -15,9 +15,9 @@ from service.pagination import (
     split_page,
 )
 from service.problems import ERROR_RESPONSES, ProblemError
+from service.schema import STUDY_JOB_KINDS
 from service.schemas.jobs import Job, JobKind, JobPage
 from service.store import TERMINAL, JobState
-from service.study_store import STUDY_JOB_KINDS
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"], responses=ERROR_RESPONSES)
 

@@ -15,13 +15,14 @@ from tests.service.servers import celery_stack as running_celery_stack
 
 
 @pytest.fixture
-def make_client(tmp_path: Path) -> Iterator:
-    """Factory of TestClients on fresh data dirs (lifespan entered, embedded runner)."""
+def make_client(tmp_path: Path, database) -> Iterator:
+    """Factory of TestClients on fresh data dirs and databases (lifespan entered, embedded
+    runner)."""
     clients = []
 
     def make(**overrides) -> TestClient:
         settings = Settings(data_dir=tmp_path / f"data{len(clients)}", broker_url=None,
-                            **overrides)
+                            database_url=database(), **overrides)
         client = TestClient(create_app(settings), raise_server_exceptions=False)
         client.__enter__()
         clients.append(client)

@@ -40,7 +40,8 @@ def service_env(data_dir: Path, **extra: str) -> dict[str, str]:
     # A queue per stack: stacks share the test Redis database.
     env.update(FNSI_DATA_DIR=str(data_dir), FNSI_LEASE_SECONDS="3",
                FNSI_QUEUE_NAME=f"fnsi-test-{data_dir.parent.name}",
-               FNSI_SUPERVISOR_INTERVAL="0.5", **extra)
+               FNSI_SUPERVISOR_INTERVAL="0.5")
+    env.update(extra)  # may name another queue, e.g. one for several hosts
     return env
 
 

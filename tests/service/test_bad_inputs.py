@@ -7,7 +7,6 @@ import asyncio
 import copy
 import hashlib
 import json
-import sqlite3
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,7 +16,9 @@ import httpx
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import select
 
+from service.schema import batches, blobs, datasets, jobs, uploads
 from service.store import JobState
 from tests.service import formats
 from tests.service.test_simulations import REQUEST as MODEL_SIMULATION
@@ -262,9 +263,9 @@ def seed(client: TestClient) -> Seeded:
 def snapshot(seeded: Seeded) -> dict:
     """Everything a bad request must leave alone: records, blobs, artefacts, tmp files."""
     store = seeded.client.app.state.store
-    with sqlite3.connect(store.db_path) as db:
-        tables = {t: db.execute(f"SELECT * FROM {t} ORDER BY 1").fetchall()
-                  for t in ("datasets", "blobs", "jobs", "batches", "uploads")}
+    with store.db.read() as db:
+        tables = {t.name: db.execute(select(t).order_by(*t.c)).all()
+                  for t in (datasets, blobs, jobs, batches, uploads)}
     files = sorted((str(p.relative_to(store.root)), hashlib.sha256(p.read_bytes()).hexdigest())
                    for p in store.root.rglob("*")
                    if p.is_file() and not p.name.startswith("fnsi.sqlite3"))

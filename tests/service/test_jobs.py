@@ -4,12 +4,13 @@ typed job results."""
 from __future__ import annotations
 
 import json
-import sqlite3
 import time
 from datetime import UTC, datetime, timedelta
 
 import pytest
+from sqlalchemy import update
 
+from service import schema
 from service.schemas.jobs import Job
 from service.schemas.results import (
     DiagnosisJobResult,
@@ -98,9 +99,9 @@ def finished_job(client, kind="simulation", request=None, *, days_ago=0.0):
     result = {"dataset_id": "ds_00000000000000000000"} if kind == "simulation" else None
     store.finish(job.id, JobState.SUCCEEDED, result=result)
     finished = datetime.now(UTC) - timedelta(days=days_ago)
-    with sqlite3.connect(store.db_path) as db:
-        db.execute("UPDATE jobs SET finished_at = ? WHERE id = ?",
-                   (finished.isoformat(timespec="milliseconds"), job.id))
+    with store.db.transaction() as db:
+        db.execute(update(schema.jobs).where(schema.jobs.c.id == job.id).values(
+            finished_at=finished.isoformat(timespec="milliseconds")))
     return job
 
 

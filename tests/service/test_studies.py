@@ -284,8 +284,8 @@ class _SavedStudy:
             raise OSError("disk full")
 
 
-def test_a_failed_save_keeps_the_previous_snapshot(tmp_path):
-    studies = StudyStore(Store(tmp_path))
+def test_a_failed_save_keeps_the_previous_snapshot(tmp_path, database):
+    studies = StudyStore(Store(tmp_path, database()))
     study = studies.create("owner", "", {})
     studies.save(study.id, _SavedStudy(1), ["job_a"])
     with pytest.raises(OSError):
@@ -300,8 +300,8 @@ def test_a_failed_save_keeps_the_previous_snapshot(tmp_path):
         "revisions-2", "revisions-3"]
 
 
-def test_the_study_lock_admits_one_job_at_a_time(tmp_path):
-    studies = StudyStore(Store(tmp_path))
+def test_the_study_lock_admits_one_job_at_a_time(tmp_path, database):
+    studies = StudyStore(Store(tmp_path, database()))
     study = studies.create("owner", "", {})
     holding, events = threading.Event(), []
 

@@ -6,20 +6,24 @@ import threading
 import time
 
 import pytest
+from sqlalchemy import update
 
+from service.schema import jobs
 from service.settings import Settings
-from service.store import JobState, Store
+from service.store import JobState, LeaseLostError, Store
 from worker.runner import run_job
 
 
 @pytest.fixture
-def settings(tmp_path) -> Settings:
-    return Settings(data_dir=tmp_path, lease_seconds=1.0, max_attempts=2, job_time_limit=30.0)
+def settings(tmp_path, database) -> Settings:
+    """Short leases, on each record store (the claim and lease contract is the store's)."""
+    return Settings(data_dir=tmp_path, lease_seconds=1.0, max_attempts=2, job_time_limit=30.0,
+                    database_url=database())
 
 
 @pytest.fixture
 def store(settings) -> Store:
-    return Store(settings.data_dir)
+    return Store.from_settings(settings)
 
 
 def counting_task(steps: int, pause: float):
@@ -79,8 +83,8 @@ def test_cancel_stops_a_running_task_within_a_second(store, settings):
     assert cancelled.state == JobState.CANCELLED and 0 < cancelled.progress < 1
 
 
-def test_time_limit_fails_the_job_with_a_reason(store, tmp_path):
-    settings = Settings(data_dir=tmp_path, job_time_limit=0.2, lease_seconds=1.0)
+def test_time_limit_fails_the_job_with_a_reason(store, settings):
+    settings = settings.model_copy(update={"job_time_limit": 0.2})
     job = store.create_job("me", "simulation", {})
     run_job(job.id, settings, {"simulation": counting_task(100, 0.01)})
     failed = store.get_job(job.id)
@@ -118,3 +122,34 @@ def test_queued_jobs_whose_message_may_be_lost_are_found_with_their_real_age(sto
     assert store.stale_queued(older_than=60) == []
     (published,) = store.stale_queued(older_than=0)
     assert published.id == job.id and 0 <= published.published_ago < 5
+
+
+def test_an_attempt_that_lost_its_job_stops_and_stores_nothing(store, settings):
+    """The job was re-queued while its attempt ran (its lease lapsed while the database
+    was out of reach): the attempt stops at its next report and never finishes the job."""
+    job = store.create_job("me", "simulation", {})
+
+    def requeued_meanwhile(context):
+        context.progress(0.1, "started")
+        with store.db.transaction() as db:  # what the supervisor's reap_lost does
+            db.execute(update(jobs).where(jobs.c.id == job.id).values(
+                state=JobState.QUEUED.value, lease_until=None))
+        for k in range(100):
+            context.progress(0.2 + k / 200, "still going")
+            time.sleep(0.01)
+        return {"ran": "to the end"}
+
+    run_job(job.id, settings, {"simulation": requeued_meanwhile})
+    after = store.get_job(job.id)
+    assert after.state == JobState.QUEUED and after.result is None, after
+
+
+def test_finishing_needs_the_attempt_that_runs_the_job(store):
+    job = store.create_job("me", "simulation", {})
+    assert store.claim(job.id, lease_seconds=30, max_attempts=3).attempt == 1
+    with pytest.raises(LeaseLostError):
+        store.finish(job.id, JobState.SUCCEEDED, result={}, attempt=2)
+    with pytest.raises(LeaseLostError):
+        store.report(job.id, lease_seconds=30, attempt=2)
+    store.finish(job.id, JobState.SUCCEEDED, result={}, attempt=1)
+    assert store.get_job(job.id).state == JobState.SUCCEEDED
