@@ -51,8 +51,10 @@ from fnsi.spectra import (
     band_lines,
     check_band,
     displacement_velocity,
+    harmonic_mask,
     kept_record,
     noise_covariance,
+    noise_factor,
     period_mean,
     transform,
 )
@@ -72,6 +74,7 @@ from fnsi.subspace import (
     input_matrices,
     memory_estimate,
 )
+from fnsi.uncertainty import Uncertainty, propagate
 
 Progress = Callable[[float, str], None]
 
@@ -159,6 +162,11 @@ class IdentificationSettings:
         of Eq. 17 that the driving-point coefficient relies on. A model that cannot be
         refined (it cannot be simulated, or the problem is too large) is returned as FNSI
         identified it, with the reason in ``refinement.message``.
+    uncertainty : bool
+        Standard deviations of the frequencies, damping ratios, mode shapes and
+        coefficients from the period-to-period noise, propagated to first order through
+        the identification (:mod:`fnsi.uncertainty`). Needs two kept periods; with one,
+        the result says that no error bar can be given.
     """
 
     band: tuple[float, float]
@@ -177,6 +185,7 @@ class IdentificationSettings:
     frequency_warping: bool = False
     memory_limit_mb: float = 8192.0
     refine: bool = False
+    uncertainty: bool = True
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -294,6 +303,9 @@ class IdentificationResult:
         What makes the result unusable in part, in words, with what to change: a model
         whose linear part is unstable (it cannot be simulated; the automatic order
         returns one only when no order of the diagram is stable). Empty when all is well.
+    uncertainty : Uncertainty or None
+        Standard deviations of the modes and coefficients (:mod:`fnsi.uncertainty`);
+        None when not asked (``settings.uncertainty`` false).
     """
 
     model: StateSpaceModel
@@ -308,9 +320,11 @@ class IdentificationResult:
     refinement: Refinement | None = None
     separability: tuple[Separability, ...] = ()
     warnings: tuple[str, ...] = ()
+    uncertainty: Uncertainty | None = None
 
     def to_json(self) -> dict:
-        """JSON-ready result (complex shapes as [re, im] pairs)."""
+        """JSON-ready result (complex shapes as [re, im] pairs), each standard deviation
+        beside its value (``*_std``, null when none could be given)."""
         m = self.modal
         return {
             "warnings": list(self.warnings),
@@ -318,12 +332,15 @@ class IdentificationResult:
             "modes": [
                 {"frequency_hz": float(f), "damping_ratio": float(z),
                  "shape": np.column_stack((s.real, s.imag)).tolist(),
-                 "confirmed": None if m.confirmed is None else bool(m.confirmed[k])}
+                 "confirmed": None if m.confirmed is None else bool(m.confirmed[k]),
+                 **self._mode_std(k)}
                 for k, (f, z, s) in enumerate(zip(m.frequencies, m.damping_ratios, m.shapes,
                                                   strict=True))
             ],
             "output_names": list(m.output_names),
-            "coefficients": [c.to_json() for c in self.coefficients],
+            "coefficients": [c.to_json() | self._coefficient_std(j)
+                             for j, c in enumerate(self.coefficients)],
+            "uncertainty": None if self.uncertainty is None else self.uncertainty.to_json(),
             "stiffness": [c.to_json() for c in self.stiffness],
             "stabilisation": None if self.stabilisation is None else self.stabilisation.to_json(),
             "singular_values": self.singular_values.tolist(),
@@ -333,6 +350,22 @@ class IdentificationResult:
             "refinement": None if self.refinement is None else self.refinement.to_json(),
             "separability": [s.to_json() for s in self.separability],
         }
+
+    def _mode_std(self, k: int) -> dict:
+        u = self.uncertainty
+        if u is None or not u.available:
+            return {"frequency_hz_std": None, "damping_ratio_std": None, "shape_std": None}
+        return {"frequency_hz_std": float(u.frequencies[k]),
+                "damping_ratio_std": float(u.damping_ratios[k]),
+                "shape_std": u.shapes[k].tolist()}
+
+    def _coefficient_std(self, j: int) -> dict:
+        u = self.uncertainty
+        if not self.coefficients[j].identifiable:
+            return {}
+        if u is None or not u.available:
+            return {"mean_real_std": None}
+        return {"mean_real_std": float(u.coefficients[j])}
 
 
 class _Clock:
@@ -479,25 +512,29 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     E = np.concatenate([u, g], axis=2)
     freq, spectrum = transform(E, periods, data.fs, settings.band, settings.line_set)
     _, Y = transform(x, periods, data.fs, settings.band, settings.line_set)
-    output_cov = input_cov = None
+    output_cov = input_cov = factor = None
     compensate = settings.compensate_basis_noise and periods >= 2 and g.shape[2] > 0
-    if compensate:
+    if periods >= 2 and (compensate or settings.uncertainty):
         # the bases of each period, whose spread is the noise the average carries
         raw = E if not settings.average_bases else np.concatenate(
             [u, _basis_series(elements, data, x, v, oversampling)[1]], axis=2)
         averaged = np.repeat([False, settings.average_bases, False],
                              [u.shape[2], g.shape[2], x.shape[2]])
-        q = E.shape[2]
-        cov = noise_covariance(np.concatenate([raw, x], axis=2), periods, data.fs,
-                               settings.band, settings.line_set, averaged=averaged)
-        input_cov = cov[:, :q]
-        output_cov = cov[:, q:, q:] if settings.weighting else None
-    elif settings.weighting:
-        output_cov = noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
+        factor = noise_factor(np.concatenate([raw, x], axis=2), periods, data.fs,
+                              settings.band, settings.line_set, averaged=averaged)
+    q = E.shape[2]
+    if compensate:
+        input_cov = np.einsum("kip,kjp->kij", factor[:, :q], factor.conj())
+    if settings.weighting:
+        output_cov = (noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
+                      if factor is None else
+                      np.einsum("kip,kjp->kij", factor[:, q:], factor[:, q:].conj()))
     names = data.input_names + tuple(n for e in elements for n in e.basis_names)
     return (Spectra(freq, data.fs, spectrum, Y, names, data.output_names, output_cov,
                     signal_lines=settings.line_counts(data)[1],
-                    input_noise_covariance=input_cov), elements, ranges)
+                    input_noise_covariance=input_cov, noise_factor=factor,
+                    harmonic=harmonic_mask(E.shape[1], periods, data.fs, settings.band,
+                                           settings.line_set)), elements, ranges)
 
 
 def _choose_order(settings: IdentificationSettings,
@@ -632,6 +669,13 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         warnings=notes + _instability(model, diagram))
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
+    if settings.uncertainty:
+        result = dataclasses.replace(result, uncertainty=propagate(
+            decomposition, model, result.modal, result.coefficients,
+            driving_points=dict(settings.driving_points) if settings.driving_points else None,
+            reflect=settings.order == "auto"))
+        clock.done("uncertainty", 0.9 if settings.refine else 1.0,
+                   "standard deviations done")
     if not settings.refine:
         return result
     try:
