@@ -355,9 +355,9 @@ class IdentificationResult:
         u = self.uncertainty
         if u is None or not u.available:
             return {"frequency_hz_std": None, "damping_ratio_std": None, "shape_std": None}
-        return {"frequency_hz_std": float(u.frequencies[k]),
-                "damping_ratio_std": float(u.damping_ratios[k]),
-                "shape_std": u.shapes[k].tolist()}
+        return {"frequency_hz_std": _finite(u.frequencies[k]),
+                "damping_ratio_std": _finite(u.damping_ratios[k]),
+                "shape_std": [[_finite(x) for x in row] for row in u.shapes[k]]}
 
     def _coefficient_std(self, j: int) -> dict:
         u = self.uncertainty
@@ -365,7 +365,12 @@ class IdentificationResult:
             return {}
         if u is None or not u.available:
             return {"mean_real_std": None}
-        return {"mean_real_std": float(u.coefficients[j])}
+        return {"mean_real_std": _finite(u.coefficients[j])}
+
+
+def _finite(value: float) -> float | None:
+    """A JSON number, or null for nan and infinity."""
+    return float(value) if np.isfinite(value) else None
 
 
 class _Clock:

@@ -76,6 +76,9 @@ DRAWS = 24
 #: small enough for the poles and coefficients to be linear in it (O(h) error), large
 #: enough for rounding (relative 1e-16 / (h x noise)) not to matter.
 STEP = 1e-2
+#: Directions of the row space of E_i whose Gram eigenvalue falls below this fraction of
+#: the largest are taken as fixed by rounding, not by the data (:class:`_InputRows`).
+RANK_TOLERANCE = 1e-12
 #: Lines per chunk of the products with the data matrices (bounds memory).
 CHUNK_LINES = 256
 
@@ -139,12 +142,13 @@ class _DataMatrix:
     """
 
     def __init__(self, w: np.ndarray, block_rows: int):
-        self.w = w
         self.i = block_rows
+        self._powers = np.cumprod(np.vstack([np.ones_like(w), np.tile(w, (block_rows - 1, 1))]),
+                                  axis=0)  # w_k^p, (i, K)
 
     def powers(self, sl: slice) -> np.ndarray:
         """w_k^p (i, lines of ``sl``)."""
-        return self.w[None, sl] ** np.arange(self.i)[:, None]  # (i, K_chunk)
+        return self._powers[:, sl]
 
     def times(self, X: np.ndarray, V: np.ndarray) -> np.ndarray:
         """X_i V for X (..., K, c) complex and V (2K, r) or (..., 2K, r) real: (..., i c, r)."""
@@ -263,7 +267,7 @@ def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
     E, Y = sp.inputs.reshape(R * N, q), sp.outputs.reshape(R * N, -1)
     dE = noise[..., :q].reshape(draws, R * N, q)
     dY = noise[..., q:].reshape(draws, R * N, -1)
-    Ue, pinv = _input_row_space(E, op)
+    rows = _InputRows(E, op)
     L = (_noise_weight(sp.noise_covariance, w, decomposition.block_rows)
          if decomposition.weighted else None)
     U = decomposition.observability if L is None else scipy.linalg.solve_triangular(
@@ -271,11 +275,11 @@ def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
     X = U[:, :order] if L is None else scipy.linalg.solve_triangular(
         L, U[:, :order], lower=True, trans="T", check_finite=False)
     YtX = op.times_t(Y, X)                       # Y_i^T L^-T U_n
-    VS = YtX - Ue @ (Ue.T @ YtX)                 # W^T U_n = V_n S_n
-    theta_t_x = pinv.T @ YtX                     # Theta^T L^-T U_n
-    b = op.times(dY, VS) - op.times(Y, pinv @ op.times(dE, VS))
+    VS = rows.project(YtX)                       # W^T U_n = V_n S_n
+    theta_t_x = rows.pinv_t(YtX)                 # Theta^T L^-T U_n
+    b = op.times(dY, VS) - op.times(Y, rows.pinv(op.times(dE, VS)))
     Dt = op.times_t(dY, X) - op.times_t(dE, theta_t_x)
-    b += op.times(Y, Dt - Ue @ (Ue.T @ Dt))
+    b += op.times(Y, rows.project(Dt))
     if L is not None:
         li, n = b.shape[1:]
         flat = np.moveaxis(b, 0, 1).reshape(li, draws * n)
@@ -289,15 +293,36 @@ def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
     return dU if L is None else L @ dU
 
 
-def _input_row_space(E: np.ndarray, op: _DataMatrix) -> tuple[np.ndarray, np.ndarray]:
-    """Orthonormal basis Q (2K x r) of the row space of E_i and the pseudo-inverse E_i^+
-    (2K x q i), by an SVD that drops the directions rounding defines (E_i can be
-    numerically rank-deficient, :mod:`fnsi.subspace` step 0)."""
-    Et = np.einsum("pk,kc->kpc", op.powers(slice(None)), E).reshape(E.shape[0], -1)
-    Et = np.concatenate([Et.real, Et.imag], axis=0)
-    Ue, s, Vh = np.linalg.svd(Et, full_matrices=False)
-    keep = s > s[0] * 1e-12
-    return Ue[:, keep], Ue[:, keep] @ (Vh[keep] / s[keep, None])
+class _InputRows:
+    """The row space of E_i (q i x 2K) through its Gram matrix E_i E_i^T: the projector Pi
+    onto its complement and the pseudo-inverse E_i^+ = E_i^T (E_i E_i^T)^+, applied to thin
+    matrices.
+
+    The Gram matrix costs a third of a QR of E_i^T and needs no pivoting when E_i is
+    numerically rank-deficient (:mod:`fnsi.subspace` step 0: condition numbers of 1e17
+    in z): directions whose eigenvalue falls below :data:`RANK_TOLERANCE` times the largest
+    are dropped (fixed by rounding, not by the data). The kept ones carry a relative error
+    of at most eps / RANK_TOLERANCE (1e-4), far below what a standard deviation needs.
+    """
+
+    def __init__(self, E: np.ndarray, op: _DataMatrix):
+        Et = np.einsum("pk,kc->kpc", op.powers(slice(None)), E).reshape(E.shape[0], -1)
+        self.Et = np.concatenate([Et.real, Et.imag], axis=0)  # E_i^T, (2K, q i)
+        lam, V = np.linalg.eigh(self.Et.T @ self.Et)
+        keep = lam > RANK_TOLERANCE * lam[-1]
+        self.inverse = (V[:, keep] / lam[keep]) @ V[:, keep].T  # (E_i E_i^T)^+
+
+    def pinv(self, X: np.ndarray) -> np.ndarray:
+        """E_i^+ X for X (..., q i, r): (..., 2K, r)."""
+        return self.Et @ (self.inverse @ X)
+
+    def pinv_t(self, X: np.ndarray) -> np.ndarray:
+        """(E_i^+)^T X for X (..., 2K, r): (..., q i, r)."""
+        return self.inverse @ (self.Et.T @ X)
+
+    def project(self, X: np.ndarray) -> np.ndarray:
+        """Pi X for X (..., 2K, r)."""
+        return X - self.pinv(self.Et.T @ X)
 
 
 def _modal_poles(modal: ModalTable) -> np.ndarray:
@@ -356,7 +381,7 @@ class _Evaluation:
         return _Point(found[nearest], peaks, shapes,
                       np.array([c.mean_real for c in coefficients]),
                       np.array([c.values if c.identifiable else np.full(sp.n_lines, np.nan)
-                                for c in coefficients]).reshape(len(coefficients), -1))
+                                for c in coefficients]).reshape(len(coefficients), sp.n_lines))
 
 
 def _summary(point: _Point) -> np.ndarray:

@@ -45,6 +45,17 @@ class IdentifiedMode(_Document):
     confirmed: bool | None = Field(description="Stable at the next order of the "
                                    "stabilisation diagram and over at least four successive "
                                    "orders; null when none follows.")
+    frequency_hz_std: float | None = Field(
+        None, description="Standard deviation of frequency_hz from the measurement noise "
+        "[Hz] (fnsi.uncertainty); null when no error bar can be given (one kept period, "
+        "or uncertainty off): uncertainty.note says why.", examples=[0.004])
+    damping_ratio_std: float | None = Field(
+        None, description="Standard deviation of damping_ratio [-]; null as "
+        "frequency_hz_std.", examples=[0.0003])
+    shape_std: list[list[float]] | None = Field(
+        None, description="Standard deviations of the real and the imaginary part of each "
+        "shape component, one [re_std, im_std] pair per output [-] (shape normalised with "
+        "its largest component 1, whose std is 0); null as frequency_hz_std.")
 
 
 class IdentifiedCoefficient(_Document):
@@ -65,6 +76,10 @@ class IdentifiedCoefficient(_Document):
                                           "large for a physical element.")
     variation: float | None = Field(None, description="Relative spread of Re mu over "
                                     "frequency [-].")
+    mean_real_std: float | None = Field(
+        None, description="Standard deviation of mean_real from the measurement noise, in "
+        "the units of mean_real (force per unit of basis function, e.g. N/m^3 for a cubic "
+        "spring); null when no error bar can be given.", examples=[1.2e6])
 
 
 class IdentifiedStiffnessCurve(_Document):
@@ -132,6 +147,18 @@ class ElementSeparability(_Document):
                                 "change; null when separable.")
 
 
+class UncertaintySummary(_Document):
+    """How the standard deviations (the *_std fields) were computed (fnsi.uncertainty)."""
+
+    method: str = Field(description="First-order propagation of the period-to-period noise "
+                        "through the identification at the chosen order.")
+    draws: int = Field(description="Noise directions propagated (the kept periods times "
+                       "the realisations, at most 24); 0 when no error bar was given.",
+                       examples=[6])
+    note: str | None = Field(description="Why no error bar could be given (e.g. a single "
+                             "kept period); null when the std fields hold values.")
+
+
 class IdentificationJobResult(_Document):
     """Result of an identification job: result.json without the model matrices,
     stabilisation diagram and singular values (download result.json or model.npz)."""
@@ -162,6 +189,9 @@ class IdentificationJobResult(_Document):
     separability: list[ElementSeparability] | None = Field(
         None, description="One per nonlinear element: can the data separate its force "
         "from the others'?")
+    uncertainty: UncertaintySummary | None = Field(
+        None, description="How the *_std fields beside the modes and coefficients were "
+        "computed; null when uncertainty was off in the settings.")
 
 
 class RevisionSummary(_Document, RevisionRecord):
