@@ -1,7 +1,8 @@
 """Cost of the standard deviations (:mod:`fnsi.uncertainty`) in an identification.
 
 Two workloads, each identified with ``uncertainty=False`` and ``True`` (best of
-``--repeat`` runs each, single-threaded BLAS unless OPENBLAS_NUM_THREADS is set):
+``--repeat`` interleaved runs each, single-threaded BLAS unless OPENBLAS_NUM_THREADS is
+set):
 
 ``smallsat``
     The paper's SmallSat single record (100 N at NC2w_Z, 8 periods of 30,000 samples at
@@ -64,12 +65,16 @@ def chain():
 
 
 def timed(measurement, settings, repeat: int):
-    """Best wall time [s] of ``repeat`` identifications, and the last result."""
-    best, result = float("inf"), None
+    """Best wall times [s] of ``repeat`` identifications without and with the standard
+    deviations, interleaved (the machine's load then weighs on both alike), and the last
+    result with them."""
+    variants = (dataclasses.replace(settings, uncertainty=False), settings)
+    best, result = [float("inf")] * 2, None
     for _ in range(repeat):
-        start = time.perf_counter()
-        result = identify(measurement, settings)
-        best = min(best, time.perf_counter() - start)
+        for k, variant in enumerate(variants):
+            start = time.perf_counter()
+            result = identify(measurement, variant)
+            best[k] = min(best[k], time.perf_counter() - start)
     return best, result
 
 
@@ -82,9 +87,7 @@ def main() -> None:
     summary = {}
     for name in args.workloads:
         measurement, settings = {"chain": chain, "smallsat": smallsat}[name]()
-        without, _ = timed(measurement, dataclasses.replace(settings, uncertainty=False),
-                           args.repeat)
-        with_, result = timed(measurement, settings, args.repeat)
+        (without, with_), result = timed(measurement, settings, args.repeat)
         u = result.uncertainty
         summary[name] = {
             "order": result.order, "without_s": round(without, 3), "with_s": round(with_, 3),

@@ -201,13 +201,24 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
             known[0].frequencies, np.column_stack([c.values for c in known]),
             [c.name for c in known],
             truth=[None if t is None or t.coefficients is None else t.coefficients[c.basis]
-                   for t, c in zip(trues, known, strict=True)])
+                   for t, c in zip(trues, known, strict=True)],
+            std=_curve_std(result))
     if result.stiffness:
         out["stiffness.png"] = plots.plot_stiffness(
             result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness],
             warnings=[_confounding(result, c.element) for c in result.stiffness])
     out["macx.png"] = _macx_figure(result, truth)
     return out
+
+
+def _curve_std(result: IdentificationResult) -> np.ndarray | None:
+    """Std of Re and Im mu_j(omega) of the identifiable coefficients (lines, s, 2), or None
+    when the identification gave no error bar."""
+    u = result.uncertainty
+    if u is None or not u.available:
+        return None
+    known = [j for j, c in enumerate(result.coefficients) if c.identifiable]
+    return u.coefficient_curves[known].transpose(1, 0, 2)
 
 
 def _confounding(result: IdentificationResult, element: NonlinearElement) -> str | None:
