@@ -338,8 +338,7 @@ class IdentificationResult:
                                                   strict=True))
             ],
             "output_names": list(m.output_names),
-            "coefficients": [c.to_json() | self._coefficient_std(j)
-                             for j, c in enumerate(self.coefficients)],
+            "coefficients": self.coefficients_json(),
             "uncertainty": None if self.uncertainty is None else self.uncertainty.to_json(),
             "stiffness": [c.to_json() for c in self.stiffness],
             "stabilisation": None if self.stabilisation is None else self.stabilisation.to_json(),
@@ -350,6 +349,11 @@ class IdentificationResult:
             "refinement": None if self.refinement is None else self.refinement.to_json(),
             "separability": [s.to_json() for s in self.separability],
         }
+
+    def coefficients_json(self) -> list[dict]:
+        """JSON of each coefficient (:meth:`fnsi.modal.Coefficient.to_json`) with the
+        standard deviation of its estimate, ``mean_real_std`` (identifiable ones)."""
+        return [c.to_json() | self._coefficient_std(j) for j, c in enumerate(self.coefficients)]
 
     def _mode_std(self, k: int) -> dict:
         u = self.uncertainty

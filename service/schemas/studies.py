@@ -197,11 +197,17 @@ class RevisionRecord(BaseModel):
         examples=[[_CLEARANCE]])
     coefficients: list[dict[str, Any]] = Field(
         description="Identified coefficients per basis function with quality criteria.")
-    modal: dict[str, list[float]] = Field(
+    modal: dict[str, list[float] | None] = Field(
         description="frequency_hz [Hz] and damping_ratio [-] of the underlying linear "
-        "system.")
+        "system, with their standard deviations from the estimation record's noise, "
+        "frequency_hz_std [Hz] and damping_ratio_std [-] (null when no error bar can be "
+        "given: one kept period).")
     nrmse_percent: float | None = Field(description="Overall validation NRMSE [%] (channels "
                                         "weighted by power); null: not simulated.")
+    nrmse_std_percent: float | None = Field(
+        None, description="Standard deviation of nrmse_percent from the noise of the "
+        "validation record [%] (delete-one-period jackknife); null with one kept period, "
+        "no simulation, or a revision computed before it existed.", examples=[0.02])
     noise_floor_percent: float | None = Field(description="Overall noise floor [%]: what a "
                                               "perfect model would reach.")
     validation: dict[str, Any] | None = Field(
@@ -237,6 +243,9 @@ class HistoryRow(BaseModel):
     elements: list[str] = Field(description="Names of the revision's elements.",
                                 examples=[["clearance NC2w_Z-NC2b_Z"]])
     nrmse_percent: float | None = Field(description="Validation NRMSE [%].", examples=[0.49])
+    nrmse_std_percent: float | None = Field(
+        None, description="Standard deviation of nrmse_percent from the validation record's "
+        "noise [%]; null when none can be given.", examples=[0.02])
     nrmse_db: float | None = Field(description="Validation NRMSE [dB].", examples=[-46.2])
     noise_floor_percent: float | None = Field(description="Noise floor [%].", examples=[0.36])
     failure: str | None = Field(None, description="Why the model could not be simulated.")
