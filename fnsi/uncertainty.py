@@ -80,7 +80,7 @@ STEP = 1e-2
 #: the largest are taken as fixed by rounding, not by the data (:class:`_InputRows`).
 RANK_TOLERANCE = 1e-12
 #: Lines per chunk of the products with the data matrices (bounds memory).
-CHUNK_LINES = 256
+CHUNK_LINES = 1024
 
 NO_PERIODS_NOTE = ("no error bar: the noise is estimated from the scatter between periods, "
                    "and only one period was kept; measure (or keep) at least two periods")
@@ -151,15 +151,29 @@ class _DataMatrix:
         return self._powers[:, sl]
 
     def times(self, X: np.ndarray, V: np.ndarray) -> np.ndarray:
-        """X_i V for X (..., K, c) complex and V (2K, r) or (..., 2K, r) real: (..., i c, r)."""
+        """X_i V for X (K, c) or (B, K, c) complex and V (2K, r) or (B, 2K, r) real (one of
+        them batched, or neither): (i c, r) or (B, i c, r)."""
         K, c = X.shape[-2:]
-        v = (V[..., :K, :] - 1j * V[..., K:, :])[..., :, None, :]  # conj, (..., K, 1, r)
+        v = V[..., :K, :] - 1j * V[..., K:, :]   # conjugated
+        if X.ndim == 3:    # the batch joins the channels: one product for all of it
+            B = X.shape[0]
+            out = self._times(np.moveaxis(X, 0, 1).reshape(K, B * c), v)
+            return np.moveaxis(out.reshape(self.i, B, c, -1), 1, 0).reshape(B, self.i * c, -1)
+        if v.ndim == 3:    # the batch joins the columns
+            B, r = v.shape[0], v.shape[2]
+            out = self._times(X, np.moveaxis(v, 0, 1).reshape(K, B * r))
+            return np.moveaxis(out.reshape(self.i * c, B, r), 1, 0)
+        return self._times(X, v).reshape(self.i * c, -1)
+
+    def _times(self, X: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """sum_k w_k^p X(k) v(k)^T, (i, c, r), for X (K, c) and v (K, r) complex."""
+        K, c = X.shape
         out = 0.0
         for start in range(0, K, CHUNK_LINES):
             sl = slice(start, start + CHUNK_LINES)
-            G = X[..., sl, :, None] * v[..., sl, :, :]  # (..., k, c, r)
-            out = out + (self.powers(sl) @ G.reshape(*G.shape[:-2], -1)).real
-        return out.reshape(*out.shape[:-2], self.i * c, -1)
+            G = (X[sl, :, None] * v[sl, None, :]).reshape(X[sl].shape[0], -1)
+            out = out + (self.powers(sl) @ G).real
+        return out.reshape(self.i, c, -1)
 
     def times_t(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """X_i^T U for X (..., K, c) complex and U (i c, r) real: (..., 2K, r)."""
@@ -314,15 +328,25 @@ class _InputRows:
 
     def pinv(self, X: np.ndarray) -> np.ndarray:
         """E_i^+ X for X (..., q i, r): (..., 2K, r)."""
-        return self.Et @ (self.inverse @ X)
+        return _columns(lambda Z: self.Et @ (self.inverse @ Z), X)
 
     def pinv_t(self, X: np.ndarray) -> np.ndarray:
         """(E_i^+)^T X for X (..., 2K, r): (..., q i, r)."""
-        return self.inverse @ (self.Et.T @ X)
+        return _columns(lambda Z: self.inverse @ (self.Et.T @ Z), X)
 
     def project(self, X: np.ndarray) -> np.ndarray:
         """Pi X for X (..., 2K, r)."""
-        return X - self.pinv(self.Et.T @ X)
+        return X - self.pinv(_columns(lambda Z: self.Et.T @ Z, X))
+
+
+def _columns(apply, X: np.ndarray) -> np.ndarray:
+    """``apply`` (a matrix product from the left) on X (rows, r) or on every (rows, r) of
+    X (B, rows, r) at once, the batch side by side as columns."""
+    if X.ndim == 2:
+        return apply(X)
+    B, rows, r = X.shape
+    out = apply(np.moveaxis(X, 0, 1).reshape(rows, B * r))
+    return np.moveaxis(out.reshape(out.shape[0], B, r), 1, 0)
 
 
 def _modal_poles(modal: ModalTable) -> np.ndarray:
