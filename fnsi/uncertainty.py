@@ -22,20 +22,27 @@ frequency-domain subspace estimates:
    library's own functions at Gamma_n + h dGamma_n and the spectra + h (dE, dY), h =
    :data:`STEP`: a directional derivative, exact to O(h).
 
-The derivatives are taken along random noise draws (dE, dY)_d = F xi_d per line and
-realisation, F the square-root factor of the noise covariance and xi_d standard complex
-normal (:data:`DRAWS` draws). The mean square of the derivatives is then an unbiased
-estimate of the first-order variance J C J^T, without forming the Jacobian J (one row per
-data point: millions) nor factorising C. Its own relative scatter is about
-1 / sqrt(2 DRAWS) (14 %); the covariance per line is pooled over many lines, so the
-estimate of C adds little to it.
+The derivatives are taken along noise directions (:func:`_directions`) whose mean
+square is the noise covariance C, so that the mean square of the derivatives is the
+first-order variance J C J^T without forming the Jacobian J (one row per data point:
+millions) nor C. On the harmonic lines of the period a direction is one kept period's
+deviation from the period average, on every line and channel at once: a whole period of
+noise keeps how the noise of the basis functions (computed in time from the noisy
+outputs, so spread over the lines by the nonlinear law) is correlated across lines and
+with the outputs, which drawing each line on its own loses (the coefficient's std then
+came out 30 % low on a cubic chain). There are R P directions (R realisations, P kept
+periods), or :data:`DRAWS` random combinations of them when R P is larger, and the
+variance they give has R (P - 1) degrees of freedom: each std is known to about
+1 / sqrt(2 R (P - 1)) of itself (32 % for the paper's six kept periods). On the other
+lines of ``line_set="all"`` (noise only) each direction draws the pooled covariance
+line by line.
 
 Why not a jackknife: re-running the decomposition for every deleted group of periods
-costs a full decomposition each (90 % of an identification of the SmallSat single record),
-twice the identification for two groups, and a jackknife over P periods estimates a
-variance with P - 1 degrees of freedom (5 for the paper's six kept periods). The
-propagation costs thin products with the data matrices (O(N l i n DRAWS)) and DRAWS
-evaluations of the least squares for B^e, D^e.
+costs a full decomposition each (85 % of an identification of the SmallSat single
+record), so two groups already triple the time. The propagation costs thin products with
+the data matrices (O(N (q + l) i n R P)), a Gram matrix of E_i and R P evaluations of
+the least squares for B^e, D^e and of the coefficients: 15-50 % of an identification
+(``benchmarks/uncertainty.py``).
 
 What it does not see: errors from the model structure (an approximate basis, an order
 that misses a mode, nonlinear distortions the bases do not model), which do not change
@@ -69,12 +76,13 @@ from fnsi.stabilisation import reflect_unstable_poles
 from fnsi.statespace import StateSpaceModel
 from fnsi.subspace import SubspaceDecomposition, _noise_weight, input_matrices, warp_lines
 
-#: Random noise directions along which the identification is differentiated: the
-#: predicted standard deviations scatter by about 1 / sqrt(2 DRAWS) around their value.
+#: Most noise directions (:func:`_directions`): beyond, random combinations of the periods
+#: (each adds about 1 / sqrt(2 DRAWS) of scatter to the std, well below that of the
+#: noise estimate itself when there are that many periods).
 DRAWS = 24
-#: Step h of the directional derivatives, in units of the noise draws (the noise level):
-#: small enough for the poles and coefficients to be linear in it (O(h) error), large
-#: enough for rounding (relative 1e-16 / (h x noise)) not to matter.
+#: Step h of the directional derivatives, in units of the noise directions (the noise
+#: level): small enough for the poles and coefficients to be linear in it (O(h) error),
+#: large enough for rounding (relative 1e-16 / (h x noise)) not to matter.
 STEP = 1e-2
 #: Directions of the row space of E_i whose Gram eigenvalue falls below this fraction of
 #: the largest are taken as fixed by rounding, not by the data (:class:`_InputRows`).
@@ -105,7 +113,7 @@ class Uncertainty:
     coefficient_curves : ndarray, shape (n_coefficients, N, 2), or None
         Std of Re and Im of mu_j(omega) on each analysis line.
     draws : int
-        Noise directions used (0 when no error bar could be given).
+        Noise directions propagated (0 when no error bar could be given).
     note : str or None
         Why there is no error bar, when the arrays are None.
     """
@@ -207,9 +215,10 @@ def propagate(decomposition: SubspaceDecomposition, model: StateSpaceModel, moda
     reflect : bool
         Whether the identification reflected unstable poles (automatic order).
     draws : int
-        Noise directions (>= 2).
+        Most noise directions: the R P kept periods of every realisation when they are
+        not more, else that many random combinations of them (:func:`_directions`).
     seed : int
-        Seed of the noise directions (the result is reproducible).
+        Seed of the random parts of the directions (the result is reproducible).
 
     Returns
     -------
@@ -227,7 +236,7 @@ def propagate(decomposition: SubspaceDecomposition, model: StateSpaceModel, moda
     nominal = evaluate(gamma, np.zeros_like(noise[0]), _modal_poles(modal))
     rows = [_difference(evaluate(gamma + STEP * dgamma[d], STEP * noise[d], nominal.poles,
                                  nominal.peaks), nominal) / STEP for d in range(len(noise))]
-    # the draws have mean zero by construction: the mean square is the variance
+    # the directions' mean square is the noise covariance: the derivatives' is the variance
     spread = np.sqrt(np.mean(np.square(rows), axis=0))
     return _unpack(spread, modal, coefficients, len(noise))
 
