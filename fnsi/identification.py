@@ -679,10 +679,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
     if settings.uncertainty:
-        result = dataclasses.replace(result, uncertainty=propagate(
-            decomposition, model, result.modal, result.coefficients,
-            driving_points=dict(settings.driving_points) if settings.driving_points else None,
-            reflect=settings.order == "auto"))
+        result = dataclasses.replace(result, uncertainty=_uncertainty(
+            decomposition, model, result, settings))
         clock.done("uncertainty", 0.9 if settings.refine else 1.0,
                    "standard deviations done")
     if not settings.refine:
@@ -696,6 +694,20 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         refinement = Refinement.refused(result.model, str(error))
     clock.done("refinement", 1.0, refinement.summary)
     return dataclasses.replace(result, model=refinement.model, refinement=refinement)
+
+
+def _uncertainty(decomposition: SubspaceDecomposition, model: StateSpaceModel,
+                 result: IdentificationResult, settings: IdentificationSettings) -> Uncertainty:
+    """The standard deviations of :func:`fnsi.uncertainty.propagate`; a model whose
+    perturbations cannot be evaluated (e.g. a singular least squares) keeps its numbers,
+    without error bars and with the reason."""
+    try:
+        return propagate(decomposition, model, result.modal, result.coefficients,
+                         driving_points=dict(settings.driving_points) or None,
+                         reflect=settings.order == "auto")
+    except (ValueError, np.linalg.LinAlgError) as error:
+        return Uncertainty.unavailable(f"no error bar: the noise could not be propagated "
+                                       f"through this model ({error})")
 
 
 def _physical(model: StateSpaceModel, spectra: Spectra, decomposition: SubspaceDecomposition,
