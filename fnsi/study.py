@@ -391,14 +391,17 @@ class Study:
 
     # -- revisions -------------------------------------------------------------------------
     def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
-                 progress: Progress | None = None) -> Evaluation:
+                 progress: Progress | None = None, *, uncertainty: bool = True) -> Evaluation:
         """Identify a model on the estimation data and run it on the validation data.
 
         The study is not changed. A model that cannot be simulated (unstable, diverging)
-        is returned with ``failure`` set instead of raising.
+        is returned with ``failure`` set instead of raising. ``uncertainty`` False skips
+        the standard deviations of its modes and coefficients (trial models of the
+        diagnosis, of which only the errors count).
         """
         elements = tuple(elements)
-        settings = replace(self.settings, elements=elements, order=order)
+        settings = replace(self.settings, elements=elements, order=order,
+                           uncertainty=uncertainty and self.settings.uncertainty)
         report = progress or (lambda fraction, message: None)
         result = identify(self.estimation, settings,
                           lambda f, m: report(0.9 * f, m))
@@ -508,7 +511,7 @@ class Study:
         parent = self.revisions[revision]
         # the curve comes from FNSI's coefficients, which refinement leaves as they are
         settings = replace(self.settings, elements=(*parent.elements, element),
-                           order=parent.identified_order, refine=False)
+                           order=parent.identified_order, refine=False, uncertainty=False)
         result = identify(self.estimation, settings)
         curves = [c for c in result.stiffness if c.element.dof == element.dof
                   and c.element.ref == element.ref and c.element.kind == element.kind]

@@ -298,11 +298,12 @@ def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
     X = U[:, :order] if L is None else scipy.linalg.solve_triangular(
         L, U[:, :order], lower=True, trans="T", check_finite=False)
     YtX = op.times_t(Y, X)                       # Y_i^T L^-T U_n
-    VS = rows.project(YtX)                       # W^T U_n = V_n S_n
-    theta_t_x = rows.pinv_t(YtX)                 # Theta^T L^-T U_n
-    b = op.times(dY, VS) - op.times(Y, rows.pinv(op.times(dE, VS)))
+    EtY = rows.coordinates(YtX)
+    VS = YtX - rows.expand(EtY)                  # W^T U_n = Pi Y_i^T L^-T U_n = V_n S_n
+    theta_t_x = rows.inverse @ EtY               # Theta^T L^-T U_n
+    b = op.times(dY, VS) - op.times(Y, rows.expand(op.times(dE, VS)))
     Dt = op.times_t(dY, X) - op.times_t(dE, theta_t_x)
-    b += op.times(Y, rows.project(Dt))
+    b += op.times(Y, Dt - rows.expand(rows.coordinates(Dt)))
     if L is not None:
         li, n = b.shape[1:]
         flat = np.moveaxis(b, 0, 1).reshape(li, draws * n)
@@ -317,11 +318,11 @@ def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
 
 
 class _InputRows:
-    """The row space of E_i (q i x 2K) through its Gram matrix E_i E_i^T: the projector Pi
-    onto its complement and the pseudo-inverse E_i^+ = E_i^T (E_i E_i^T)^+, applied to thin
-    matrices.
+    """The row space of E_i (q i x 2K) through its Gram matrix E_i E_i^T: the pseudo-inverse
+    E_i^+ = E_i^T (E_i E_i^T)^+ and the projector Pi = I - E_i^+ E_i onto the complement,
+    applied to thin matrices.
 
-    The Gram matrix costs a third of a QR of E_i^T and needs no pivoting when E_i is
+    The Gram matrix (block Toeplitz, :func:`_toeplitz_gram`) needs no pivoting when E_i is
     numerically rank-deficient (:mod:`fnsi.subspace` step 0: condition numbers of 1e17
     in z): directions whose eigenvalue falls below :data:`RANK_TOLERANCE` times the largest
     are dropped (fixed by rounding, not by the data). The kept ones carry a relative error
@@ -329,23 +330,37 @@ class _InputRows:
     """
 
     def __init__(self, E: np.ndarray, op: _DataMatrix):
-        Et = np.einsum("pk,kc->kpc", op.powers(slice(None)), E).reshape(E.shape[0], -1)
-        self.Et = np.concatenate([Et.real, Et.imag], axis=0)  # E_i^T, (2K, q i)
-        lam, V = np.linalg.eigh(self.Et.T @ self.Et)
+        self.E, self.op = E, op
+        lam, V = np.linalg.eigh(_toeplitz_gram(E, op.powers(slice(None))))
         keep = lam > RANK_TOLERANCE * lam[-1]
         self.inverse = (V[:, keep] / lam[keep]) @ V[:, keep].T  # (E_i E_i^T)^+
 
-    def pinv(self, X: np.ndarray) -> np.ndarray:
-        """E_i^+ X for X (..., q i, r): (..., 2K, r)."""
-        return _columns(lambda Z: self.Et @ (self.inverse @ Z), X)
+    def coordinates(self, X: np.ndarray) -> np.ndarray:
+        """E_i X for X (..., 2K, r): (..., q i, r)."""
+        return self.op.times(self.E, X)
 
-    def pinv_t(self, X: np.ndarray) -> np.ndarray:
-        """(E_i^+)^T X for X (..., 2K, r): (..., q i, r)."""
-        return _columns(lambda Z: self.inverse @ (self.Et.T @ Z), X)
+    def expand(self, C: np.ndarray) -> np.ndarray:
+        """E_i^T (E_i E_i^T)^+ C for C (..., q i, r): E_i^+ C, (..., 2K, r); the projection
+        of X onto the row space of E_i is expand(coordinates(X))."""
+        return _columns(lambda Z: self.op.times_t(self.E, self.inverse @ Z), C)
 
-    def project(self, X: np.ndarray) -> np.ndarray:
-        """Pi X for X (..., 2K, r)."""
-        return X - self.pinv(_columns(lambda Z: self.Et.T @ Z, X))
+
+def _toeplitz_gram(E: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """E_i E_i^T (q i x q i) from its 2 i - 1 distinct blocks, O(K q^2 i) instead of
+    O(K q^2 i^2).
+
+    With the real and imaginary parts side by side and |w_k| = 1 (the lines and their
+    warped variable lie on the unit circle), block (p, p') is Re S_(p - p') with
+    S_d = sum_k w_k^d E(k) E(k)^H, and S_-d = S_d^H.
+    """
+    K, q = E.shape
+    i = powers.shape[0]
+    S = (powers @ (E[:, :, None] * E.conj()[:, None, :]).reshape(K, q * q)).real
+    S = S.reshape(i, q, q)
+    lag = np.arange(i)[:, None] - np.arange(i)[None, :]
+    blocks = np.where((lag >= 0)[:, :, None, None], S[np.abs(lag)],
+                      np.swapaxes(S[np.abs(lag)], -1, -2))
+    return blocks.transpose(0, 2, 1, 3).reshape(i * q, i * q)
 
 
 def _columns(apply, X: np.ndarray) -> np.ndarray:
@@ -397,24 +412,32 @@ class _Evaluation:
                                    shift_rhs=None).state_matrices(order)
         if self.reflect:
             A = reflect_unstable_poles(A)[0]
-        sp = dec.spectra
-        q = sp.inputs.shape[2]
-        E, Y = sp.inputs + noise[..., :q], sp.outputs + noise[..., q:]
-        B, D = input_matrices(A, C, E, Y, sp.z, noise_covariance=sp.input_noise_covariance)
-        model = dataclasses.replace(self.model, A=A, B=B / dec.input_scale, C=C,
-                                    D=D / dec.input_scale)
-        found, vectors = continuous_poles(A, model.fs)
+        found, vectors = continuous_poles(A, self.model.fs)
         nearest = np.argmin(np.abs(found[None, :] - poles[:, None]), axis=1)
         shapes = (C @ vectors[:, nearest]).T
         if peaks is None:
             peaks = np.argmax(np.abs(shapes), axis=1)
         shapes = shapes / shapes[np.arange(len(peaks)), peaks][:, None]
+        estimates, curves = self._coefficients(A, C, noise)
+        return _Point(found[nearest], peaks, shapes, estimates, curves)
+
+    def _coefficients(self, A: np.ndarray, C: np.ndarray, noise: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Band estimates (s,) and mu_j(omega) (s, N) of the model with B^e, D^e fitted to
+        the moved spectra (nothing to fit for a linear model: B, D leave the modes alone)."""
+        dec, sp = self.decomposition, self.decomposition.spectra
+        if not self.model.elements:
+            return np.zeros(0), np.zeros((0, sp.n_lines))
+        q = sp.inputs.shape[2]
+        E, Y = sp.inputs + noise[..., :q], sp.outputs + noise[..., q:]
+        B, D = input_matrices(A, C, E, Y, sp.z, noise_covariance=sp.input_noise_covariance)
+        model = dataclasses.replace(self.model, A=A, B=B / dec.input_scale, C=C,
+                                    D=D / dec.input_scale)
         power = np.mean(np.abs(E * dec.input_scale) ** 2, axis=0)
         coefficients = nonlinear_coefficients(model, sp.frequencies, self.points, power)
-        return _Point(found[nearest], peaks, shapes,
-                      np.array([c.mean_real for c in coefficients]),
-                      np.array([c.values if c.identifiable else np.full(sp.n_lines, np.nan)
-                                for c in coefficients]).reshape(len(coefficients), sp.n_lines))
+        return (np.array([c.mean_real for c in coefficients]),
+                np.array([c.values if c.identifiable else np.full(sp.n_lines, np.nan)
+                          for c in coefficients]).reshape(len(coefficients), sp.n_lines))
 
 
 def _summary(point: _Point) -> np.ndarray:
