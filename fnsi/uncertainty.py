@@ -281,7 +281,8 @@ def _directions(factor: np.ndarray, harmonic: np.ndarray | None, realisations: i
 
 def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
                           noise: np.ndarray) -> np.ndarray:
-    """dGamma_n (draws, l i, n) of each noise draw (step 1 of the module notes)."""
+    """dGamma_n (D, l i, n) along each noise direction (D, R, N, q + l) (step 1 of the
+    module notes)."""
     sp = decomposition.spectra
     R, N, q = sp.inputs.shape
     draws = noise.shape[0]
@@ -305,16 +306,23 @@ def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
     Dt = op.times_t(dY, X) - op.times_t(dE, theta_t_x)
     b += op.times(Y, Dt - rows.expand(rows.coordinates(Dt)))
     if L is not None:
-        li, n = b.shape[1:]
-        flat = np.moveaxis(b, 0, 1).reshape(li, draws * n)
-        b = np.moveaxis(scipy.linalg.solve_triangular(L, flat, lower=True, check_finite=False)
-                        .reshape(li, draws, n), 1, 0)
-    lam = decomposition.singular_values ** 2
-    coords = np.swapaxes(U, 0, 1) @ b             # (draws, k, n)
-    rest = b - U @ coords
-    gap = lam[None, :order] - lam[order:, None]   # (k - n, n)
-    dU = U[:, order:] @ (coords[:, order:] / gap) + rest / lam[:order]
+        b = _columns(lambda Z: scipy.linalg.solve_triangular(L, Z, lower=True,
+                                                             check_finite=False), b)
+    dU = _range_change(U, decomposition.singular_values ** 2, b, order)
     return dU if L is None else L @ dU
+
+
+def _range_change(U: np.ndarray, lam: np.ndarray, b: np.ndarray, order: int) -> np.ndarray:
+    """First-order change of the n = ``order`` dominant eigenvectors of M = W W^T outside
+    their span, for changes dM u_r = b[..., r] (module notes, step 1).
+
+    (lam_r I - M_perp)^-1 P_perp b_r on the k known eigenvectors U (l i, k) with
+    eigenvalues ``lam`` (k,), and b_r / lam_r beyond them (M nearly 0 there).
+    """
+    coords = np.swapaxes(U, 0, 1) @ b              # (..., k, n)
+    rest = b - U @ coords
+    gap = lam[None, :order] - lam[order:, None]    # (k - n, n)
+    return U[:, order:] @ (coords[..., order:, :] / gap) + rest / lam[:order]
 
 
 class _InputRows:

@@ -43,18 +43,21 @@ def _predicted(result) -> np.ndarray:
                            u.shapes[:, :, 0][free]])
 
 
-@pytest.mark.parametrize("line_set", ["excited", "all"])
-def test_predicted_std_agrees_with_monte_carlo(clean, line_set):
+@pytest.mark.parametrize("options", [
+    {"line_set": "excited"}, {"line_set": "all"},
+    {"line_set": "all", "weighting": True, "frequency_warping": True}])
+def test_predicted_std_agrees_with_monte_carlo(clean, options):
     """Mean predicted std over 50 noise realisations against the observed scatter.
 
     Tolerance +-30 %: the observed std of 50 realisations has a relative standard error
     of 1 / sqrt(2 x 49) = 10 %, and each prediction rests on the 8 degrees of freedom of
     the eight kept periods (mean of the square root about 3 % low); 30 % is three
     standard errors. Frequencies, damping ratios, the cubic coefficient and 6 free shape
-    components are checked.
+    components are checked, on the harmonic lines, on all lines of the record, and with
+    the noise weighting and the warped variable (the SmallSat settings).
     """
     record, element = clean
-    settings = IdentificationSettings(**SETTINGS, elements=(element,), line_set=line_set)
+    settings = IdentificationSettings(**SETTINGS, elements=(element,), **options)
     rng = np.random.default_rng(7)
     level = NOISE * record.y.std(axis=1, keepdims=True)
     estimates, predictions = [], []
