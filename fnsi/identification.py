@@ -51,6 +51,7 @@ from fnsi.spectra import (
     band_lines,
     check_band,
     displacement_velocity,
+    factor_product,
     harmonic_mask,
     kept_record,
     noise_covariance,
@@ -533,11 +534,10 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
                               settings.band, settings.line_set, averaged=averaged)
     q = E.shape[2]
     if compensate:
-        input_cov = np.einsum("kip,kjp->kij", factor[:, :q], factor.conj())
+        input_cov = factor_product(factor[:, :q], factor)
     if settings.weighting:
         output_cov = (noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
-                      if factor is None else
-                      np.einsum("kip,kjp->kij", factor[:, q:], factor[:, q:].conj()))
+                      if factor is None else factor_product(factor[:, q:], factor[:, q:]))
     names = data.input_names + tuple(n for e in elements for n in e.basis_names)
     return (Spectra(freq, data.fs, spectrum, Y, names, data.output_names, output_cov,
                     signal_lines=settings.line_counts(data)[1],

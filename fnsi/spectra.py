@@ -356,7 +356,13 @@ def noise_covariance(y: np.ndarray, periods: int, fs: float, band: tuple[float, 
         (pooled over the realisations), F F^H of :func:`noise_factor`.
     """
     factor = noise_factor(y, periods, fs, band, line_set, averaged=averaged)
-    return np.einsum("kip,kjp->kij", factor, factor.conj())
+    return factor_product(factor, factor)
+
+
+def factor_product(F: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """F G^H on each line: (N, a, p) and (N, b, p) to (N, a, b), e.g. the covariance of
+    two groups of channels from their rows of :func:`noise_factor`."""
+    return np.einsum("kip,kjp->kij", F, G.conj())
 
 
 def output_spectra(measurement: Measurement, band: tuple[float, float], *,
