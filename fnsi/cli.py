@@ -123,7 +123,7 @@ def _identification_settings(args: argparse.Namespace):
         weighting=args.weighting,
         frequency_warping=args.frequency_warping,
         driving_points=tuple(_pair(text) for text in args.driving_point),
-        refine=args.refine,
+        refine=args.refine, uncertainty=not args.no_uncertainty,
     )
 
 
@@ -149,18 +149,28 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"warning: {warning}")
     print(f"order {result.order}; artefacts in {folder}/")
     for mode in report.document["modes"]:
-        print(f"  {mode['frequency_hz']:9.4f} Hz  damping {100 * mode['damping_ratio']:6.3f} %")
+        print(f"  {mode['frequency_hz']:9.4f}{_std(mode['frequency_hz_std'], 1, '.2g')} Hz  "
+              f"damping {100 * mode['damping_ratio']:6.3f}"
+              f"{_std(mode['damping_ratio_std'], 100, '.2g')} %")
     for c in report.document["coefficients"]:
-        quality = (f"mean Re {c['mean_real']:.6g} {c['unit']}, log10(Re/Im) "
-                   f"{c['log10_real_imag']:.2f}"
+        quality = (f"mean Re {c['mean_real']:.6g}{_std(c['mean_real_std'], 1, '.2g')} "
+                   f"{c['unit']}, log10(Re/Im) {c['log10_real_imag']:.2f}"
                    if c.get("mean_real") is not None else c["reason"])
         print(f"  {c['name']}: {quality}")
+    note = (report.document.get("uncertainty") or {}).get("note")
+    if note:
+        print(f"  {note}")
     for separation in result.separability:
         if separation.concern:
             print(f"  warning: {separation.concern}")
     if result.refinement is not None:
         print(result.refinement.summary)
     return 0
+
+
+def _std(value: float | None, scale: float, spec: str) -> str:
+    """" +- std" of a value (times ``scale``), or nothing when there is no error bar."""
+    return "" if value is None else f" \u00b1 {scale * value:{spec}}"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -290,6 +300,9 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine", action="store_true",
                         help="refine the model by minimising its simulation error (slower; "
                         "the model then reproduces the measurement much more closely)")
+    parser.add_argument("--no-uncertainty", action="store_true",
+                        help="skip the standard deviations (+- in the modal table; they "
+                        "add 15-50 %% to the identification's time)")
     parser.add_argument("--element", action="append", default=[],
                         help="a nonlinear element as JSON (repeatable)")
     parser.add_argument("--elements", help="JSON file with a list of nonlinear elements")

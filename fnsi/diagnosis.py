@@ -859,7 +859,8 @@ def _validate(study: Study, revision: int, proposal: Proposal, before: float,
     """Stage 3 for one element proposal."""
     base = study.revisions[revision]
     try:
-        evaluation = study.evaluate((*base.elements, proposal.element), base.identified_order)
+        evaluation = study.evaluate((*base.elements, proposal.element), base.identified_order,
+                                    uncertainty=False)
     except ValueError as error:   # e.g. too many basis functions for the data
         return _unidentified(proposal.effect, proposal.location, proposal.element,
                              base.identified_order, proposal.reduction, error)
@@ -884,7 +885,7 @@ def _validate_mode(study: Study, revision: int, before: float, floor: float) -> 
     base = study.revisions[revision]
     order = base.identified_order + 2
     try:
-        evaluation = study.evaluate(base.elements, order)
+        evaluation = study.evaluate(base.elements, order, uncertainty=False)
     except ValueError as error:   # e.g. the order exceeds what the data allow
         return _unidentified(Effect.MISSING_MODE, None, None, order, None, error)
     after = evaluation.nrmse_percent

@@ -139,6 +139,41 @@ def _periods_view(record: np.ndarray, periods: int, name: str) -> np.ndarray:
     return y.reshape(y.shape[0], periods, y.shape[1] // periods, y.shape[2])
 
 
+def left_out_nrmse(measured: np.ndarray, simulated: np.ndarray, *,
+                   periods: int) -> np.ndarray:
+    """Per-channel NRMSE [%] of :func:`model_errors` with each period left out in turn.
+
+    The jackknife replicates of the NRMSE over the periods: their spread, times
+    sqrt((P - 1)^2 / P) about their mean, is the standard deviation that the noise of the
+    measurement gives the NRMSE of the P-period average (Efron's delete-one jackknife;
+    the NRMSE is a smooth function of the period average).
+
+    Parameters
+    ----------
+    measured : ndarray, shape (samples, l) or (realisations, samples, l)
+        Steady-state measured outputs, ``periods`` (>= 2) whole periods.
+    simulated : ndarray
+        One period of the model outputs per realisation (or the same shape as
+        ``measured``).
+    periods : int
+        Number of periods in ``measured``.
+
+    Returns
+    -------
+    ndarray, shape (periods, l)
+        Row p: the NRMSE of the average of every period but p.
+    """
+    if periods < 2:
+        raise ValueError(f"leaving a period out needs at least two; got {periods}")
+    y = _periods_view(measured, periods, "measured")
+    sim = np.asarray(simulated, dtype=float)
+    model = _periods_view(sim, periods if sim.shape[-2] == y.shape[1] * y.shape[2] else 1,
+                          "simulated").mean(axis=1)
+    others = (y.sum(axis=1, keepdims=True) - y) / (periods - 1)   # (R, P, N, l)
+    error = np.mean((others - model[:, None]) ** 2, axis=(0, 2))
+    return 100.0 * np.sqrt(error / np.mean(others**2, axis=(0, 2)))
+
+
 def model_errors(
     measured: np.ndarray,
     simulated: np.ndarray,

@@ -51,8 +51,11 @@ from fnsi.spectra import (
     band_lines,
     check_band,
     displacement_velocity,
+    factor_product,
+    harmonic_mask,
     kept_record,
     noise_covariance,
+    noise_factor,
     period_mean,
     transform,
 )
@@ -72,6 +75,7 @@ from fnsi.subspace import (
     input_matrices,
     memory_estimate,
 )
+from fnsi.uncertainty import Uncertainty, propagate
 from fnsi.units import ModelUnits
 
 Progress = Callable[[float, str], None]
@@ -160,6 +164,11 @@ class IdentificationSettings:
         of Eq. 17 that the driving-point coefficient relies on. A model that cannot be
         refined (it cannot be simulated, or the problem is too large) is returned as FNSI
         identified it, with the reason in ``refinement.message``.
+    uncertainty : bool
+        Standard deviations of the frequencies, damping ratios, mode shapes and
+        coefficients from the period-to-period noise, propagated to first order through
+        the identification (:mod:`fnsi.uncertainty`). Needs two kept periods; with one,
+        the result says that no error bar can be given.
     """
 
     band: tuple[float, float]
@@ -178,6 +187,7 @@ class IdentificationSettings:
     frequency_warping: bool = False
     memory_limit_mb: float = 8192.0
     refine: bool = False
+    uncertainty: bool = True
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -298,6 +308,9 @@ class IdentificationResult:
     units : ModelUnits
         Units of the data identified from (:mod:`fnsi.units`): FRF, coefficients and
         stiffness curves are in the units they derive; placeholders when not given.
+    uncertainty : Uncertainty or None
+        Standard deviations of the modes and coefficients (:mod:`fnsi.uncertainty`);
+        None when not asked (``settings.uncertainty`` false).
     """
 
     model: StateSpaceModel
@@ -313,15 +326,17 @@ class IdentificationResult:
     separability: tuple[Separability, ...] = ()
     warnings: tuple[str, ...] = ()
     units: ModelUnits = field(default_factory=lambda: ModelUnits("", "", "displacement"))
+    uncertainty: Uncertainty | None = None
 
     def coefficient_unit(self, coefficient: Coefficient) -> str:
         """Unit of a coefficient: force per unit of its basis function (Eq. 1-2)."""
         return self.units.coefficient(self.model.elements[coefficient.element])
 
     def to_json(self) -> dict:
-        """JSON-ready result (complex shapes as [re, im] pairs); coefficients carry their
-        ``unit``, stiffness curves their ``x_unit`` and ``force_unit``, ``units`` those of
-        the data (input, output, displacement, FRF)."""
+        """JSON-ready result (complex shapes as [re, im] pairs), each standard deviation
+        beside its value (``*_std``, null when none could be given); coefficients carry
+        their ``unit``, stiffness curves their ``x_unit`` and ``force_unit``, ``units``
+        those of the data (input, output, displacement, FRF)."""
         m = self.modal
         return {
             "warnings": list(self.warnings),
@@ -329,14 +344,15 @@ class IdentificationResult:
             "modes": [
                 {"frequency_hz": float(f), "damping_ratio": float(z),
                  "shape": np.column_stack((s.real, s.imag)).tolist(),
-                 "confirmed": None if m.confirmed is None else bool(m.confirmed[k])}
+                 "confirmed": None if m.confirmed is None else bool(m.confirmed[k]),
+                 **self._mode_std(k)}
                 for k, (f, z, s) in enumerate(zip(m.frequencies, m.damping_ratios, m.shapes,
                                                   strict=True))
             ],
             "output_names": list(m.output_names),
             "units": self.units.to_json(),
-            "coefficients": [c.to_json() | {"unit": self.coefficient_unit(c)}
-                             for c in self.coefficients],
+            "coefficients": self.coefficients_json(),
+            "uncertainty": None if self.uncertainty is None else self.uncertainty.to_json(),
             "stiffness": [c.to_json(self.units) for c in self.stiffness],
             "stabilisation": None if self.stabilisation is None else self.stabilisation.to_json(),
             "singular_values": self.singular_values.tolist(),
@@ -346,6 +362,34 @@ class IdentificationResult:
             "refinement": None if self.refinement is None else self.refinement.to_json(),
             "separability": [s.to_json() for s in self.separability],
         }
+
+    def coefficients_json(self) -> list[dict]:
+        """JSON of each coefficient (:meth:`fnsi.modal.Coefficient.to_json`) with its
+        ``unit`` and the standard deviation of its estimate, ``mean_real_std``
+        (identifiable ones)."""
+        return [c.to_json() | {"unit": self.coefficient_unit(c)} | self._coefficient_std(j)
+                for j, c in enumerate(self.coefficients)]
+
+    def _mode_std(self, k: int) -> dict:
+        u = self.uncertainty
+        if u is None or not u.available:
+            return {"frequency_hz_std": None, "damping_ratio_std": None, "shape_std": None}
+        return {"frequency_hz_std": _finite(u.frequencies[k]),
+                "damping_ratio_std": _finite(u.damping_ratios[k]),
+                "shape_std": [[_finite(x) for x in row] for row in u.shapes[k]]}
+
+    def _coefficient_std(self, j: int) -> dict:
+        u = self.uncertainty
+        if not self.coefficients[j].identifiable:
+            return {}
+        if u is None or not u.available:
+            return {"mean_real_std": None}
+        return {"mean_real_std": _finite(u.coefficients[j])}
+
+
+def _finite(value: float) -> float | None:
+    """A JSON number, or null for nan and infinity."""
+    return float(value) if np.isfinite(value) else None
 
 
 class _Clock:
@@ -492,25 +536,28 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     E = np.concatenate([u, g], axis=2)
     freq, spectrum = transform(E, periods, data.fs, settings.band, settings.line_set)
     _, Y = transform(x, periods, data.fs, settings.band, settings.line_set)
-    output_cov = input_cov = None
+    output_cov = input_cov = factor = None
     compensate = settings.compensate_basis_noise and periods >= 2 and g.shape[2] > 0
-    if compensate:
+    if periods >= 2 and (compensate or settings.uncertainty):
         # the bases of each period, whose spread is the noise the average carries
         raw = E if not settings.average_bases else np.concatenate(
             [u, _basis_series(elements, data, x, v, oversampling)[1]], axis=2)
         averaged = np.repeat([False, settings.average_bases, False],
                              [u.shape[2], g.shape[2], x.shape[2]])
-        q = E.shape[2]
-        cov = noise_covariance(np.concatenate([raw, x], axis=2), periods, data.fs,
-                               settings.band, settings.line_set, averaged=averaged)
-        input_cov = cov[:, :q]
-        output_cov = cov[:, q:, q:] if settings.weighting else None
-    elif settings.weighting:
-        output_cov = noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
+        factor = noise_factor(np.concatenate([raw, x], axis=2), periods, data.fs,
+                              settings.band, settings.line_set, averaged=averaged)
+    q = E.shape[2]
+    if compensate:
+        input_cov = factor_product(factor[:, :q], factor)
+    if settings.weighting:
+        output_cov = (noise_covariance(x, periods, data.fs, settings.band, settings.line_set)
+                      if factor is None else factor_product(factor[:, q:], factor[:, q:]))
     names = data.input_names + tuple(n for e in elements for n in e.basis_names)
     return (Spectra(freq, data.fs, spectrum, Y, names, data.output_names, output_cov,
                     signal_lines=settings.line_counts(data)[1],
-                    input_noise_covariance=input_cov), elements, ranges)
+                    input_noise_covariance=input_cov, noise_factor=factor,
+                    harmonic=harmonic_mask(E.shape[1], periods, data.fs, settings.band,
+                                           settings.line_set)), elements, ranges)
 
 
 def _choose_order(settings: IdentificationSettings,
@@ -645,6 +692,11 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         warnings=notes + _instability(model, diagram), units=data.units)
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
+    if settings.uncertainty:
+        result = dataclasses.replace(result, uncertainty=_uncertainty(
+            decomposition, model, result, settings))
+        clock.done("uncertainty", 0.9 if settings.refine else 1.0,
+                   "standard deviations done")
     if not settings.refine:
         return result
     try:
@@ -656,6 +708,20 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         refinement = Refinement.refused(result.model, str(error))
     clock.done("refinement", 1.0, refinement.summary)
     return dataclasses.replace(result, model=refinement.model, refinement=refinement)
+
+
+def _uncertainty(decomposition: SubspaceDecomposition, model: StateSpaceModel,
+                 result: IdentificationResult, settings: IdentificationSettings) -> Uncertainty:
+    """The standard deviations of :func:`fnsi.uncertainty.propagate`; a model whose
+    perturbations cannot be evaluated (e.g. a singular least squares) keeps its numbers,
+    without error bars and with the reason."""
+    try:
+        return propagate(decomposition, model, result.modal, result.coefficients,
+                         driving_points=dict(settings.driving_points) or None,
+                         reflect=settings.order == "auto")
+    except (ValueError, np.linalg.LinAlgError) as error:
+        return Uncertainty.unavailable(f"no error bar: the noise could not be propagated "
+                                       f"through this model ({error})")
 
 
 def _physical(model: StateSpaceModel, spectra: Spectra, decomposition: SubspaceDecomposition,

@@ -259,6 +259,7 @@ def plot_coefficients(
     truth: Sequence[float | None] | None = None,
     unit: str = "input unit per unit of g_j",
     title: str = "Nonlinear coefficients",
+    std: np.ndarray | None = None,
 ) -> bytes:
     """Real and imaginary parts of the nonlinear coefficients mu_j(omega) (paper Figure 7).
 
@@ -279,6 +280,9 @@ def plot_coefficients(
         Unit of the coefficients for the axis labels (force per unit of basis function).
     title : str
         Figure title.
+    std : ndarray, shape (lines, s, 2), optional
+        Standard deviations of Re and Im mu_j on each line (:mod:`fnsi.uncertainty`),
+        drawn as shaded +-1 std bands.
 
     Returns
     -------
@@ -299,10 +303,16 @@ def plot_coefficients(
         real.plot(frequencies, mu[:, j].real, color=colour, lw=1.0,
                   label=name if labelled else None)
         imaginary.plot(frequencies, mu[:, j].imag, color=colour, lw=1.0)
+        if std is not None:
+            for ax, part, k in ((real, mu[:, j].real, 0), (imaginary, mu[:, j].imag, 1)):
+                ax.fill_between(frequencies, part - std[:, j, k], part + std[:, j, k],
+                                color=colour, alpha=0.25, lw=0)
         if truth is not None and truth[j] is not None:
             real.axhline(truth[j], color=colour, ls=":", lw=1.2)
     if truth is not None and any(t is not None for t in truth):
         real.plot([], [], color="k", ls=":", label="truth")
+    if std is not None:
+        real.fill_between([], [], [], color="k", alpha=0.25, lw=0, label="\u00b11 std (noise)")
     real.set_ylabel(f"Re mu_j [{unit}]")
     imaginary.set_ylabel(f"Im mu_j [{unit}]")
     imaginary.set_xlabel("Frequency [Hz]")

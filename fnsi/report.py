@@ -228,7 +228,7 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
                                                                            strict=True)],
             truth=[None if t is None or t.coefficients is None else t.coefficients[c.basis]
                    for t, c in zip(trues, known, strict=True)],
-            unit=units[0] if shared else "unit in the legend")
+            unit=units[0] if shared else "unit in the legend", std=_curve_std(result))
     if result.stiffness:
         out["stiffness.png"] = plots.plot_stiffness(
             result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness],
@@ -236,6 +236,16 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
             warnings=[_confounding(result, c.element) for c in result.stiffness])
     out["macx.png"] = _macx_figure(result, truth)
     return out
+
+
+def _curve_std(result: IdentificationResult) -> np.ndarray | None:
+    """Std of Re and Im mu_j(omega) of the identifiable coefficients (lines, s, 2), or None
+    when the identification gave no error bar."""
+    u = result.uncertainty
+    if u is None or not u.available:
+        return None
+    known = [j for j, c in enumerate(result.coefficients) if c.identifiable]
+    return u.coefficient_curves[known].transpose(1, 0, 2)
 
 
 def _confounding(result: IdentificationResult, element: NonlinearElement) -> str | None:

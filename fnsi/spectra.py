@@ -29,7 +29,7 @@ Array convention: time series (realisations, samples, channels); spectra
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -73,6 +73,12 @@ class Spectra:
         from measured outputs carry their noise (errors in variables); the least squares
         for B^e and D^e subtract its expected contribution (:func:`fnsi.subspace.
         input_matrices`).
+    noise_factor : ndarray, shape (N, q + l, R P), complex, or None
+        Square-root factor F of the joint noise covariance of one realisation's [E(k);
+        Y(k)], F F^H (:func:`noise_factor`), in the units of the measured spectra (before
+        any scaling of the inputs); what :mod:`fnsi.uncertainty` propagates.
+    harmonic : ndarray, shape (N,), bool, or None
+        Lines that are harmonics of the period (:func:`harmonic_mask`); None: all are.
     """
 
     frequencies: np.ndarray
@@ -84,6 +90,8 @@ class Spectra:
     noise_covariance: np.ndarray | None = None
     signal_lines: int | None = None
     input_noise_covariance: np.ndarray | None = None
+    noise_factor: np.ndarray | None = field(default=None, repr=False)
+    harmonic: np.ndarray | None = None
 
     @property
     def z(self) -> np.ndarray:
@@ -270,6 +278,58 @@ def transform(x: np.ndarray, periods: int, fs: float, band: tuple[float, float],
     return lines * fs / M, per_period.mean(axis=1)
 
 
+def noise_factor(y: np.ndarray, periods: int, fs: float, band: tuple[float, float],
+                 line_set: str, *, averaged: np.ndarray | None = None) -> np.ndarray:
+    """Square-root factor F of the noise covariance per line: F F^H = :func:`noise_covariance`.
+
+    The columns are the period-to-period deviations Y_p(k) - mean_p Y_p(k) of every kept
+    period of every realisation, scaled so that F F^H is the pooled sample covariance of
+    one realisation's spectrum. Random combinations F xi (xi standard complex normal)
+    then have that covariance without factorising it: it has rank R (P - 1) at most,
+    often far below the channels (:mod:`fnsi.uncertainty` draws noise this way).
+
+    Parameters
+    ----------
+    y, periods, fs, band, line_set, averaged
+        As in :func:`noise_covariance`.
+
+    Returns
+    -------
+    ndarray, shape (N, c, R P), complex
+        One factor per line of :func:`transform`.
+    """
+    if periods < 2:
+        raise ValueError(f"noise statistics need at least two kept periods; got {periods} "
+                         "(measure more periods or discard fewer)")
+    R, n, n_out = y.shape
+    M = n // periods
+    lines = band_lines(M, fs, band)
+    Y = dft_lines(y.reshape(R, periods, M, n_out), lines)  # (R, P, N, l)
+    dev = (Y - Y.mean(axis=1, keepdims=True)) / np.sqrt(R * (periods - 1))
+    factor = dev.transpose(2, 3, 0, 1).reshape(lines.size, n_out, R * periods)
+    if line_set == "excited":
+        return factor / np.sqrt(periods)
+    all_lines = band_lines(n, fs, band)
+    nearest = np.clip(np.rint(all_lines / periods).astype(int), lines[0], lines[-1])
+    factor = factor[np.searchsorted(lines, nearest)]
+    if averaged is not None:
+        quiet = np.asarray(averaged, dtype=bool)[None, :] & (all_lines % periods != 0)[:, None]
+        factor = np.where(quiet[:, :, None], 0.0, factor)
+    return factor
+
+
+def harmonic_mask(n_samples: int, periods: int, fs: float, band: tuple[float, float],
+                  line_set: str) -> np.ndarray:
+    """Which lines of :func:`transform` are harmonics of the period, shape (N,) bool.
+
+    All of the ``"excited"`` set; one in ``periods`` of ``"all"`` (the others carry noise
+    and transients only).
+    """
+    if line_set == "excited":
+        return np.ones(band_lines(n_samples // periods, fs, band).size, dtype=bool)
+    return band_lines(n_samples, fs, band) % periods == 0
+
+
 def noise_covariance(y: np.ndarray, periods: int, fs: float, band: tuple[float, float],
                      line_set: str, *, averaged: np.ndarray | None = None) -> np.ndarray:
     """Noise covariance per line from the period-to-period spread.
@@ -293,26 +353,16 @@ def noise_covariance(y: np.ndarray, periods: int, fs: float, band: tuple[float, 
     -------
     ndarray, shape (N, c, c), complex
         Covariance of one realisation's spectrum on each line of :func:`transform`
-        (pooled over the realisations).
+        (pooled over the realisations), F F^H of :func:`noise_factor`.
     """
-    if periods < 2:
-        raise ValueError(f"noise statistics need at least two kept periods; got {periods} "
-                         "(measure more periods or discard fewer)")
-    R, n, n_out = y.shape
-    M = n // periods
-    lines = band_lines(M, fs, band)
-    Y = dft_lines(y.reshape(R, periods, M, n_out), lines)  # (R, P, N, l)
-    dev = Y - Y.mean(axis=1, keepdims=True)
-    cov = np.einsum("rpki,rpkj->kij", dev, dev.conj()) / (R * (periods - 1))
-    if line_set == "excited":
-        return cov / periods
-    all_lines = band_lines(n, fs, band)
-    nearest = np.clip(np.rint(all_lines / periods).astype(int), lines[0], lines[-1])
-    cov = cov[np.searchsorted(lines, nearest)]
-    if averaged is not None:
-        quiet = np.asarray(averaged, dtype=bool)[None, :] & (all_lines % periods != 0)[:, None]
-        cov = np.where(quiet[:, :, None] | quiet[:, None, :], 0.0, cov)
-    return cov
+    factor = noise_factor(y, periods, fs, band, line_set, averaged=averaged)
+    return factor_product(factor, factor)
+
+
+def factor_product(F: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """F G^H on each line: (N, a, p) and (N, b, p) to (N, a, b), e.g. the covariance of
+    two groups of channels from their rows of :func:`noise_factor`."""
+    return np.einsum("kip,kjp->kij", F, G.conj())
 
 
 def output_spectra(measurement: Measurement, band: tuple[float, float], *,

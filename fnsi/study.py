@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fnsi.errors import ModelErrors, json_float, model_errors
+from fnsi.errors import ModelErrors, json_float, left_out_nrmse, model_errors
 from fnsi.identification import IdentificationResult, IdentificationSettings, identify
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
@@ -69,6 +69,31 @@ def pooled_percent(values: np.ndarray, power: np.ndarray) -> float:
     return float(np.sqrt(np.sum(np.asarray(values) ** 2 * power) / np.sum(power)))
 
 
+def pooled_std_percent(measured: np.ndarray, simulated: np.ndarray, periods: int,
+                       power: np.ndarray) -> float | None:
+    """Standard deviation [%] of the :func:`pooled_percent` NRMSE from the noise of the
+    measurement: the delete-one-period jackknife (:func:`fnsi.errors.left_out_nrmse`).
+    None with one period (the noise cannot be told from the signal).
+
+    Parameters
+    ----------
+    measured : ndarray, shape (R, periods x period_length, l)
+        Kept (steady-state) measured outputs.
+    simulated : ndarray, shape (R, period_length, l)
+        One simulated period per realisation.
+    periods : int
+        Kept periods.
+    power : ndarray, shape (l,)
+        Channel weights of :func:`pooled_percent`.
+    """
+    if periods < 2:
+        return None
+    replicates = [pooled_percent(row, power)
+                  for row in left_out_nrmse(measured, simulated, periods=periods)]
+    return float(np.sqrt((periods - 1) / periods
+                         * np.sum((np.array(replicates) - np.mean(replicates)) ** 2)))
+
+
 @dataclass(frozen=True)
 class Evaluation:
     """A model (order and elements) identified on estimation and run on validation data.
@@ -91,6 +116,9 @@ class Evaluation:
         not be simulated).
     failure : str or None
         Why the model could not be simulated (e.g. unstable), else None.
+    nrmse_std_percent : float or None
+        Standard deviation of ``nrmse_percent`` from the noise of the validation record
+        [%] (:func:`pooled_std_percent`); None with one kept period or no simulation.
     """
 
     elements: tuple[NonlinearElement, ...]
@@ -100,6 +128,7 @@ class Evaluation:
     excited: np.ndarray | None
     nrmse_percent: float = math.inf
     failure: str | None = None
+    nrmse_std_percent: float | None = None
 
     @property
     def order(self) -> int:
@@ -184,6 +213,10 @@ class Revision:
     separability : tuple of dict
         :meth:`fnsi.separability.Separability.to_json` of every element: whether the
         data tell its force apart from the others' (empty for revisions saved before).
+    nrmse_std_percent : float or None
+        Standard deviation of ``nrmse_percent`` from the validation record's noise [%]
+        (:func:`pooled_std_percent`); None with one kept period, no simulation, or for
+        revisions saved before.
     """
 
     number: int
@@ -202,6 +235,7 @@ class Revision:
     failure: str | None = None
     refinement: dict | None = None
     separability: tuple[dict, ...] = ()
+    nrmse_std_percent: float | None = None
 
     def to_json(self, *, spectra: bool = False) -> dict:
         """JSON-ready revision: model summary and validation errors (with the error per
@@ -228,6 +262,7 @@ class Revision:
             "coefficients": list(self.coefficients),
             "modal": self.modal,
             "nrmse_percent": json_float(self.nrmse_percent),
+            "nrmse_std_percent": self.nrmse_std_percent,
             "noise_floor_percent": json_float(self.noise_floor_percent),
             "validation": errors,
             "failure": self.failure,
@@ -238,13 +273,17 @@ class Revision:
 
 def _coefficients_json(result: IdentificationResult) -> tuple[dict, ...]:
     """Identified coefficients with their quality criteria, per element."""
-    return tuple(c.to_json() for c in result.coefficients)
+    return tuple(result.coefficients_json())
 
 
 def _modal_json(result: IdentificationResult) -> dict:
-    modal = result.modal
+    """Frequencies and damping ratios, with their standard deviations (None without)."""
+    modal, u = result.modal, result.uncertainty
+    known = u is not None and u.available
     return {"frequency_hz": modal.frequencies.tolist(),
-            "damping_ratio": modal.damping_ratios.tolist()}
+            "damping_ratio": modal.damping_ratios.tolist(),
+            "frequency_hz_std": u.frequencies.tolist() if known else None,
+            "damping_ratio_std": u.damping_ratios.tolist() if known else None}
 
 
 def _check_pair(estimation: Measurement, validation: Measurement) -> None:
@@ -359,14 +398,17 @@ class Study:
 
     # -- revisions -------------------------------------------------------------------------
     def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
-                 progress: Progress | None = None) -> Evaluation:
+                 progress: Progress | None = None, *, uncertainty: bool = True) -> Evaluation:
         """Identify a model on the estimation data and run it on the validation data.
 
         The study is not changed. A model that cannot be simulated (unstable, diverging)
-        is returned with ``failure`` set instead of raising.
+        is returned with ``failure`` set instead of raising. ``uncertainty`` False skips
+        the standard deviations of its modes and coefficients (trial models of the
+        diagnosis, of which only the errors count).
         """
         elements = tuple(elements)
-        settings = replace(self.settings, elements=elements, order=order)
+        settings = replace(self.settings, elements=elements, order=order,
+                           uncertainty=uncertainty and self.settings.uncertainty)
         report = progress or (lambda fraction, message: None)
         result = identify(self.estimation, settings,
                           lambda f, m: report(0.9 * f, m))
@@ -381,10 +423,15 @@ class Study:
         errors = comparison.errors
         validation = self.validation.select(inputs=result.model.input_names,
                                             outputs=result.model.output_names)
+        kept = validation.periods - self.settings.discard_periods
+        spread = pooled_std_percent(
+            kept_record(validation.y, validation.periods, self.settings.discard_periods),
+            comparison.simulated, kept, self.channel_power)
         report(1.0, "validated")
         return Evaluation(elements, result, comparison.simulated, errors,
                           self._excited_lines(validation, errors.frequencies),
-                          pooled_percent(errors.nrmse_percent, self.channel_power))
+                          pooled_percent(errors.nrmse_percent, self.channel_power),
+                          nrmse_std_percent=spread)
 
     def _excited_lines(self, validation: Measurement, frequencies: np.ndarray) -> np.ndarray:
         """Lines where the validation input has power (the others show distortion)."""
@@ -407,6 +454,7 @@ class Study:
             noise_floor_percent=self.noise_floor_percent, failure=evaluation.failure,
             refinement=None if result.refinement is None else result.refinement.to_json(),
             separability=tuple(s.to_json() for s in result.separability),
+            nrmse_std_percent=evaluation.nrmse_std_percent,
         )
         self.revisions.append(revision)
         return revision
@@ -470,7 +518,7 @@ class Study:
         parent = self.revisions[revision]
         # the curve comes from FNSI's coefficients, which refinement leaves as they are
         settings = replace(self.settings, elements=(*parent.elements, element),
-                           order=parent.identified_order, refine=False)
+                           order=parent.identified_order, refine=False, uncertainty=False)
         result = identify(self.estimation, settings)
         curves = [c for c in result.stiffness if c.element.dof == element.dof
                   and c.element.ref == element.ref and c.element.kind == element.kind]
@@ -485,6 +533,7 @@ class Study:
                 "number": r.number, "note": r.note, "order": r.identified_order,
                 "elements": [e.name for e in r.elements],
                 "nrmse_percent": json_float(r.nrmse_percent),
+                "nrmse_std_percent": r.nrmse_std_percent,
                 "nrmse_db": json_float(20 * math.log10(r.nrmse_percent / 100))
                 if math.isfinite(r.nrmse_percent) and r.nrmse_percent > 0 else None,
                 "noise_floor_percent": json_float(r.noise_floor_percent),
@@ -686,4 +735,5 @@ def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study)
                              else item["noise_floor_percent"]),
         failure=item["failure"], refinement=item.get("refinement"),
         separability=tuple(item.get("separability", ())),
+        nrmse_std_percent=item.get("nrmse_std_percent"),
     )

@@ -43,6 +43,10 @@ class IdentifiedCoefficient(StoredDocument):
     unit: str | None = Field(None, description="Unit of mu: input unit per unit of the "
                              "basis function (fnsi.units; 'input unit', 'output unit' where "
                              "the dataset gives none).", examples=["N/mm^3"])
+    mean_real_std: float | None = Field(
+        None, description="Standard deviation of mean_real from the measurement noise, in "
+        "the units of mean_real (unit); null when no error bar can be given.",
+        examples=[1.2e6])
 
 
 class ChannelError(StoredDocument):

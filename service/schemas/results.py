@@ -44,6 +44,17 @@ class IdentifiedMode(StoredDocument):
     confirmed: bool | None = Field(description="Stable at the next order of the "
                                    "stabilisation diagram and over at least four successive "
                                    "orders; null when none follows.")
+    frequency_hz_std: float | None = Field(
+        None, description="Standard deviation of frequency_hz from the measurement noise "
+        "[Hz] (fnsi.uncertainty); null when no error bar can be given (one kept period, "
+        "or uncertainty off): uncertainty.note says why.", examples=[0.004])
+    damping_ratio_std: float | None = Field(
+        None, description="Standard deviation of damping_ratio [-]; null as "
+        "frequency_hz_std.", examples=[0.0003])
+    shape_std: list[list[float]] | None = Field(
+        None, description="Standard deviations of the real and the imaginary part of each "
+        "shape component, one [re_std, im_std] pair per output [-] (shape normalised with "
+        "its largest component 1, whose std is 0); null as frequency_hz_std.")
 
 
 
@@ -104,6 +115,20 @@ class UsedSettings(StoredDocument):
     driving_points: list[list[str]] = Field(description="(input, output) driving points.")
     frequency_warping: bool = Field(description="Warped frequency variable.")
     refine: bool = Field(description="Output-error refinement asked.")
+    uncertainty: bool = Field(True, description="Standard deviations asked (the *_std "
+                              "fields).")
+
+
+class UncertaintySummary(StoredDocument):
+    """How the standard deviations (the *_std fields) were computed (fnsi.uncertainty)."""
+
+    method: str = Field(description="First-order propagation of the period-to-period noise "
+                        "through the identification at the chosen order.")
+    draws: int = Field(description="Noise directions propagated (the kept periods times "
+                       "the realisations, at most 24); 0 when no error bar was given.",
+                       examples=[6])
+    note: str | None = Field(description="Why no error bar could be given (e.g. a single "
+                             "kept period); null when the std fields hold values.")
 
 
 class IdentificationJobResult(StoredDocument):
@@ -138,6 +163,9 @@ class IdentificationJobResult(StoredDocument):
     separability: list[ElementSeparability] | None = Field(
         None, description="One per nonlinear element: can the data separate its force "
         "from the others'?")
+    uncertainty: UncertaintySummary | None = Field(
+        None, description="How the *_std fields beside the modes and coefficients were "
+        "computed; null when uncertainty was off in the settings.")
 
 
 class RevisionSummary(StoredDocument, RevisionRecord):

@@ -198,6 +198,12 @@ class RevisionModes(BaseModel):
                                       examples=[[13.7, 21.2]])
     damping_ratio: list[float] = Field(description="Damping ratios [-].",
                                        examples=[[0.012, 0.009]])
+    frequency_hz_std: list[float | None] | None = Field(
+        None, description="Standard deviations of frequency_hz from the estimation record's "
+        "noise [Hz]; null when no error bar can be given (one kept period).")
+    damping_ratio_std: list[float | None] | None = Field(
+        None, description="Standard deviations of damping_ratio [-]; null as "
+        "frequency_hz_std.")
 
 
 class RevisionRecord(BaseModel):
@@ -216,6 +222,10 @@ class RevisionRecord(BaseModel):
     modal: RevisionModes = Field(description="Modes of the underlying linear system.")
     nrmse_percent: float | None = Field(description="Overall validation NRMSE [%] (channels "
                                         "weighted by power); null: not simulated.")
+    nrmse_std_percent: float | None = Field(
+        None, description="Standard deviation of nrmse_percent from the noise of the "
+        "validation record [%] (delete-one-period jackknife); null with one kept period, "
+        "no simulation, or a revision computed before it existed.", examples=[0.02])
     noise_floor_percent: float | None = Field(description="Overall noise floor [%]: what a "
                                               "perfect model would reach.")
     validation: ErrorSummary | None = Field(
@@ -249,6 +259,9 @@ class HistoryRow(BaseModel):
     elements: list[str] = Field(description="Names of the revision's elements.",
                                 examples=[["clearance NC2w_Z-NC2b_Z"]])
     nrmse_percent: float | None = Field(description="Validation NRMSE [%].", examples=[0.49])
+    nrmse_std_percent: float | None = Field(
+        None, description="Standard deviation of nrmse_percent from the validation record's "
+        "noise [%]; null when none can be given.", examples=[0.02])
     nrmse_db: float | None = Field(description="Validation NRMSE [dB].", examples=[-46.2])
     noise_floor_percent: float | None = Field(description="Noise floor [%].", examples=[0.36])
     failure: str | None = Field(None, description="Why the model could not be simulated.")

@@ -181,3 +181,19 @@ def test_history_table_says_why_a_revision_failed():
     table = unstable.history_table().splitlines()
     assert "failed" in table[1] and table[2].strip() == f"failed: {failure}"
     assert unstable.history()[0]["failure"] == failure
+
+
+def test_revisions_give_their_errors_modes_and_coefficients_with_standard_deviations(study):
+    linear, cubic = study.revisions
+    for revision in (linear, cubic):
+        # the noise moves the NRMSE by a fraction of itself (the MC check of the
+        # jackknife is tests/fnsi/test_uncertainty.py)
+        assert 0 < revision.nrmse_std_percent < revision.nrmse_percent
+    assert study.history()[1]["nrmse_std_percent"] == cubic.nrmse_std_percent
+    document = study.to_json()["revisions"][1]
+    modal = document["modal"]
+    assert len(modal["frequency_hz_std"]) == len(modal["frequency_hz"]) > 0
+    assert all(0 < s < 0.01 * f for s, f in zip(modal["frequency_hz_std"],
+                                                 modal["frequency_hz"], strict=True))
+    (coefficient,) = document["coefficients"]
+    assert 0 < coefficient["mean_real_std"] < 0.1 * abs(coefficient["mean_real"])
