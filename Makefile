@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: run worker test lint bench bench-paper bench-determinism clean
+.PHONY: run worker test test-numerics lint bench bench-paper bench-determinism clean
 
 ## run: create the virtual environment, install, serve http://127.0.0.1:8000 (embedded jobs)
 run: $(VENV)/.installed
@@ -17,6 +17,11 @@ worker: $(VENV)/.installed
 test: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+## test-numerics: the numerical tests alone, to run under another BLAS kernel, e.g.
+## OPENBLAS_CORETYPE=SkylakeX OPENBLAS_NUM_THREADS=2 make test-numerics (CI does)
+test-numerics: $(VENV)/.installed-dev
+	$(BIN)/python -m pytest tests/fnsi tests/benchmarks $(PYTEST_ARGS)
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .

@@ -46,6 +46,7 @@ from fnsi.oversampling import oversampled_bases, oversampling_factor
 from fnsi.refinement import Refinement, refine
 from fnsi.separability import Separability, separability
 from fnsi.spectra import (
+    INTEGRATIONS,
     LINE_SETS,
     Spectra,
     band_lines,
@@ -91,8 +92,9 @@ class IdentificationSettings:
         Analysis band [Hz], 0 <= low < high <= fs / 2.
     block_rows : int or "auto"
         Index i of Eq. 9 (paper: 50 with 39 outputs, 100 with 3), or ``"auto"``: the
-        largest i with (m + s + l) i <= N_s R, N_s the harmonic lines of the period in the
-        band and R the realisations, at most 100 (:func:`fnsi.subspace.auto_block_rows`;
+        smallest i with l (i - 1) >= 2 max(max_order, order), but at most the largest with
+        (m + s + l) i <= N_s R, N_s the harmonic lines of the period in the band and R the
+        realisations, and at most 100 (:func:`fnsi.subspace.auto_block_rows`;
         :meth:`resolved` gives the count). With periodic data only the harmonic lines
         carry signal, and a count that lets the elimination of E_i (Eq. 14) take all of
         them is refused (:func:`fnsi.subspace.check_dimensions`, rule 3), also with
@@ -142,16 +144,13 @@ class IdentificationSettings:
     frequency_warping : bool
         Build the data matrices of Eq. 9-11 in the warped variable w = (z - a) /
         (1 - a z) that spreads the band over the unit circle (:func:`fnsi.subspace.
-        band_warp`; the model is mapped back to z exactly). With a band that is a small
-        fraction of fs and many block rows, the powers z^p are nearly dependent and the
-        results are fixed by rounding: on the SmallSat single-nonlinearity test (band 2 %
-        of fs, i = 50) a perturbation of the record in its last digits moved the automatic
-        order from 6 to 10 and the coefficient error from -0.07 to -0.26 %; warped they do
-        not move. It removes the dependence on rounding, not the noise: the models
-        simulate alike (the same test with three outputs and the true stop: validation
-        error 5.57 % warped, 5.59 % not). Off by default, as in the paper: on wide bands
-        (a quarter of fs, the 3-DOF chains of the tests) warping made results worse
-        (damping errors of 0.11 % instead of 0.0006 % on exact data, i = 10).
+        band_warp`; the model is mapped back to z exactly). It was needed when the data
+        matrices held the powers z^p, which a narrow band makes numerically dependent;
+        they now hold polynomials orthonormal on the band (:func:`fnsi.subspace.
+        band_polynomials`), which are well conditioned in z too, so warping only changes
+        the model class (a model of order n in w). Off by default: on wide bands (a
+        quarter of fs, the 3-DOF chains of the tests) it made results worse (damping
+        errors of 0.11 % instead of 0.0006 % on exact data, i = 10).
     memory_limit_mb : float
         Refuse problems whose FNSI working memory estimate exceeds this [MiB].
     refine : bool
@@ -253,7 +252,8 @@ class IdentificationSettings:
         extended = data.n_inputs + sum(e.n_basis for e in self.elements)
         order = None if self.order == "auto" else int(self.order)
         i = auto_block_rows(self.line_counts(data)[1], data.n_realisations, extended,
-                            data.n_outputs, order=order)
+                            data.n_outputs, max_order=max(self.max_order, order or 0),
+                            order=order)
         return dataclasses.replace(self, block_rows=i)
 
     def to_json(self) -> dict:
@@ -279,7 +279,7 @@ class IdentificationResult:
         ``confirmed`` flags from the stabilisation diagram (None when no higher order of
         the diagram follows the order). With ``order="auto"`` only the confirmed modes:
         the modes the automatic choice keeps (:func:`fnsi.stabilisation.choose_order`:
-        confirmed, persistent and carrying at least 0.1 % of the fitted response); with
+        confirmed, persistent and carrying at least 1 % of the fitted response); with
         an explicit order every physical pole, flagged.
     coefficients : tuple of Coefficient
         mu_j(omega) of every basis function, with the least-squares estimate over the band
@@ -573,22 +573,31 @@ def _choose_order(settings: IdentificationSettings,
     return int(diagram.auto_order)
 
 
-def _contributions(decomposition: SubspaceDecomposition
+def _contributions(decomposition: SubspaceDecomposition, quantity: str
                    ) -> Callable[[int, ModalTable], np.ndarray]:
     """Share of each mode of an order in the fitted response to the measured inputs over
-    the band (:func:`fnsi.stabilisation.modal_contributions`), for the order choice.
+    the band, in the measured ``quantity`` (:func:`fnsi.stabilisation.modal_contributions`),
+    for the order choice.
 
-    B is fitted with the basis functions (:meth:`SubspaceDecomposition.model`): fitted to
-    the inputs alone, poles that stand for the nonlinear forces seem to carry response
-    (on 24 random 5-DOF chains, 20 of them with a cubic spring, the automatic order then
-    found all modes and no spurious one in 16 chains instead of 19).
+    The model's outputs are displacements (Eq. 1); a mode's share of the measured response
+    is its share of the displacement response times (j omega)^p, p the integrations from
+    the measured quantity (an accelerometer sees high modes far above low ones: on a
+    7-DOF grid measured in acceleration the 52 Hz mode carried 11 % of the measured power
+    and 0.08 % of the displacement power). B is fitted with the basis functions
+    (:meth:`SubspaceDecomposition.model`): fitted to the inputs alone, poles that stand for
+    the nonlinear forces seem to carry response (on 24 random 5-DOF chains, 20 of them with
+    a cubic spring, the automatic order then found all modes and no spurious one in 16
+    chains instead of 19).
     """
-    lines = np.unique(decomposition.spectra.frequencies)
+    spectra = decomposition.spectra
+    m = decomposition.n_inputs
+    derivative = (2j * np.pi * spectra.frequencies) ** INTEGRATIONS[quantity]
+    inputs = spectra.inputs[:, :, :m] * decomposition.input_scale[:m] * derivative[:, None]
 
     def shares(order: int, modes: ModalTable) -> np.ndarray:
         model = decomposition.model(order)
-        return modal_contributions(model.A, model.B[:, :model.n_inputs], model.C, model.fs,
-                                   lines, modes)
+        return modal_contributions(model.A, model.B[:, :m], model.C, model.fs,
+                                   spectra.frequencies, modes, inputs)
 
     return shares
 
@@ -677,7 +686,7 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     clock.done("decomposition", 0.6, "subspace decomposition done")
     diagram = (stabilisation_diagram(decomposition, data.fs, max_order=max_order,
                                      band=settings.band, output_names=data.output_names,
-                                     contributions=_contributions(decomposition))
+                                     contributions=_contributions(decomposition, data.quantity))
                if max_order >= 4 else None)
     order = _choose_order(settings, diagram)
     clock.done("stabilisation", 0.7, f"order {order}")

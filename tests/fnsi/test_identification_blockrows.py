@@ -39,13 +39,22 @@ def spline(intervals: int) -> NonlinearElement:
 
 def test_auto_block_rows_use_at_most_half_the_signal_columns():
     # SmallSat multi-18: 540 harmonic lines, 18 outputs, 1 force and 8 clearances or
-    # 8 splines of 8 ordinates
-    assert auto_block_rows(540, 1, 9, 18) == 20
-    assert auto_block_rows(540, 1, 65, 18) == 6
-    assert auto_block_rows(540, 2, 9, 18) == 40  # each realisation adds 2 N_s columns
-    assert auto_block_rows(540, 1, 2, 3) == AUTO_MAX_BLOCK_ROWS  # 108 capped
-    assert auto_block_rows(30, 1, 2, 1, order=20) == 21  # n <= l (i - 1)
-    assert auto_block_rows(10, 1, 30, 3) == 2
+    # 8 splines of 8 ordinates; with a diagram to order 600 the lines bind
+    assert auto_block_rows(540, 1, 9, 18, max_order=600) == 20
+    assert auto_block_rows(540, 1, 65, 18, max_order=600) == 6
+    assert auto_block_rows(540, 2, 9, 18, max_order=600) == 40  # each realisation adds 2 N_s
+    assert auto_block_rows(540, 1, 2, 3, max_order=600) == AUTO_MAX_BLOCK_ROWS  # 108 capped
+    assert auto_block_rows(10, 1, 30, 3, max_order=60) == 2
+
+
+def test_auto_block_rows_give_every_order_twice_the_rows_it_needs():
+    # the shift property needs l (i - 1) >= n; the count is the smallest with twice that
+    # for the diagram's largest order (18 outputs, order 60: 18 x 7 = 126 >= 120)
+    assert auto_block_rows(540, 1, 9, 18, max_order=60) == 8
+    assert auto_block_rows(540, 1, 2, 3, max_order=60) == 41
+    assert 3 * (41 - 1) >= 2 * 60 > 3 * (40 - 1)
+    # an explicit order above what the lines allow raises the count to n <= l (i - 1)
+    assert auto_block_rows(30, 1, 2, 1, max_order=20, order=20) == 21
 
 
 def test_line_counts_and_resolved_block_rows(periodic):

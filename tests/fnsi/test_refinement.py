@@ -88,10 +88,11 @@ def test_jacobian_matches_finite_differences_on_the_loop_outputs(records):
                                atol=1e-12 * np.abs(gradient).max())
 
 
-def _finite_difference_jacobian(problem: _Problem, theta: np.ndarray) -> np.ndarray:
+def _finite_difference_jacobian(problem: _Problem, theta: np.ndarray,
+                                 step: float = 1e-6) -> np.ndarray:
     columns = []
     for k in range(theta.size):
-        h = 1e-6 * max(abs(theta[k]), 1e-3)
+        h = step * max(abs(theta[k]), 1e-3)
         up, down = theta.copy(), theta.copy()
         up[k] += h
         down[k] -= h
@@ -119,12 +120,16 @@ def test_jacobian_with_two_inputs_two_elements_and_two_realisations(chain, simul
     modal, sizes = real_modal_form(start)
     problem = _Problem(modal, sizes, u, y, np.arange(1, 60), 1, max_radius=1.0)
     theta = problem.layout.pack(modal)
-    J, fd = problem.jacobian(theta), _finite_difference_jacobian(problem, theta)
+    # a clearance makes the residual piecewise smooth: a step that moves one sample across
+    # the gap is no derivative (relative step 1e-6 does so for two pole columns of this
+    # model, 2 % off; 1e-7 and 1e-8 agree with the Jacobian to 1e-8)
+    J, fd = problem.jacobian(theta), _finite_difference_jacobian(problem, theta, step=1e-7)
     dynamic = slice(0, problem.layout.slices[2].stop)      # poles, B^e and C
     error = np.linalg.norm(J - fd, axis=0) / np.linalg.norm(fd, axis=0)
     assert error[dynamic].max() < 1e-4
     refinement = refine(start, record, discard_periods=1, band_high=BAND[1])
-    assert refinement.final_percent < refinement.initial_percent / 5     # 39 % -> 2.8 %
+    # 5.1 % -> 2.8 % (39 % -> 2.8 % when E_i held the powers z^p)
+    assert refinement.final_percent < refinement.initial_percent / 1.5
 
 
 def test_refinement_brings_the_validation_error_to_the_noise_floor(records):
@@ -137,9 +142,11 @@ def test_refinement_brings_the_validation_error_to_the_noise_floor(records):
     before, after = (compare(r.model, validation, discard_periods=1, band_high=BAND[1],
                              oversampling=1).errors for r in (fnsi, refined))
     floor = after.overall_noise_floor_percent
-    assert before.overall_percent > 15.0              # FNSI alone: 20 %
-    assert after.overall_percent < 1.5 * floor        # refined: 3.4 %, floor 2.9 %
-    assert refined.refinement.final_percent < refined.refinement.initial_percent / 4
+    # FNSI alone: 4.7 % (20 % when E_i held the powers z^p, which rounding made
+    # dependent); refined: 3.4 %, floor 2.9 %
+    assert after.overall_percent < 1.5 * floor
+    assert after.overall_percent < 0.8 * before.overall_percent
+    assert refined.refinement.final_percent < 0.8 * refined.refinement.initial_percent
     assert refined.timings["refinement"] > 0.0
     # the physical estimates stay FNSI's
     assert refined.coefficients[0].mean_real == fnsi.coefficients[0].mean_real
@@ -161,7 +168,7 @@ def test_refinement_estimates_the_gap(records):
     before, after = (compare(r.model, validation, discard_periods=1, band_high=BAND[1],
                              oversampling=1).errors for r in (fnsi, refined))
     assert after.overall_percent < 1.5 * after.overall_noise_floor_percent
-    assert before.overall_percent > 3 * after.overall_percent
+    assert before.overall_percent > 1.5 * after.overall_percent  # 6.1 % -> 3.4 %
 
 
 def test_linear_model_is_refined_in_the_frequency_domain(chain, simulate_record):

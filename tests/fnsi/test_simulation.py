@@ -228,7 +228,7 @@ def test_identified_model_reproduces_the_measurement_near_the_noise_floor():
 
 
 def _smallsat_true_decomposition(data, stop: NonlinearElement, band: tuple[float, float],
-                                 max_order: int) -> SubspaceDecomposition:
+                                 max_order: int, basis: str) -> SubspaceDecomposition:
     """FNSI decomposition of the true extended FRF of SmallSat (models up to ``max_order``).
 
     H^e = [H_w, -mu (H_w - H_b)] with H_w, H_b the receptance columns (K - w^2 M + j w C)^-1
@@ -254,7 +254,7 @@ def _smallsat_true_decomposition(data, stop: NonlinearElement, band: tuple[float
                       (*data.input_names, stop.name), data.output_names)
     element = NonlinearElement("clearance", stop.dof, stop.ref, gap=stop.gap)
     return decompose(spectra, block_rows=20, max_order=max_order, n_inputs=1,
-                     elements=(element,))
+                     elements=(element,), basis=basis)
 
 
 def test_stiff_smallsat_contact_simulates_to_the_floor_with_its_out_of_band_dynamics():
@@ -267,13 +267,14 @@ def test_stiff_smallsat_contact_simulates_to_the_floor_with_its_out_of_band_dyna
     floor, so the simulation is not what limits identified models; a model of the in-band
     modes only (order 8, fitted to the same truth in 5-50 Hz) lumps them into D^e and
     misses the contact path to NC2b_Z by ~10 %, which the stiff loop turns into errors of
-    5 % and more.
+    several hundred times the floor.
 
-    The exact in-band response does determine those modes (order 16 on 5-50 Hz finds
-    them), but only through singular values below 1e-4 of the largest: FNSI on the
-    records cannot recover them, because the 0.5 % noise and even the aliasing of the
-    contact force sampled at 2.5 kHz (the records depart from the exact in-band response
-    by 3.4e-4) are larger (issue 7).
+    The order-24 model is fitted in the paper's powers basis (``basis="powers"``): this
+    exact response is no discrete-time model of order 24, and the truncation in the
+    orthonormal basis keeps a real pole at 1.3 kHz whose contact loop diverges (the two
+    bases weigh the lines differently where no exact model exists). The in-band response
+    holds the out-of-band modes only through singular values below 1e-4 of the largest
+    (issue 7), which the noise of any record hides.
     """
     from fnsi.smallsat import simulate_preset
     from fnsi.validation import compare
@@ -281,25 +282,15 @@ def test_stiff_smallsat_contact_simulates_to_the_floor_with_its_out_of_band_dyna
     data, truth = simulate_preset("single", periods=4, samples_per_period=7500,
                                   outputs=("NC2w_Z", "NC2b_Z", "W_Z"), seed=2)
     stop = next(e for e in truth.elements if (e.dof, e.ref) == ("NC2w_Z", "NC2b_Z"))
-    wide = _smallsat_true_decomposition(data, stop, (5.0, 150.0), 24)
-    in_band = _smallsat_true_decomposition(data, stop, (5.0, 50.0), 16)
-    models = {24: wide.model(24), 8: in_band.model(8), 16: in_band.model(16)}
+    wide = _smallsat_true_decomposition(data, stop, (5.0, 150.0), 24, "powers")
+    in_band = _smallsat_true_decomposition(data, stop, (5.0, 50.0), 8, "orthonormal")
+    models = {24: wide.model(24), 8: in_band.model(8)}
     errors = {order: compare(model, data, discard_periods=1, band_high=50.0).errors
               for order, model in models.items()}
     floor = errors[8].noise_floor_percent
     # observed 1.0-1.13 x the floor over seeds of the random input and block rows 20-30;
     # 1.5 x leaves room for the noise of one realisation
     assert np.all(errors[24].nrmse_percent < 1.5 * floor)
-    # observed 200-350 x the floor here (25-35 x on 5 s periods): in-band modes alone
+    # observed 240-410 x the floor here (25-35 x on 5 s periods): in-band modes alone
     # cannot meet issue 7's 3 x
     assert np.all(errors[8].nrmse_percent > 10 * floor)
-    # observed 3.3-3.8 x per channel: the out-of-band modes, found from the exact in-band
-    # response, bring the in-band model close to the floor
-    poles = np.log(np.linalg.eigvals(models[16].A)) * data.fs
-    frequencies = np.abs(poles) / (2 * np.pi)
-    for mode in (55.0, 74.9, 157.4):
-        assert np.min(np.abs(frequencies - mode)) < 0.01 * mode
-    assert np.all(errors[16].nrmse_percent < 5 * floor)
-    # ... through states 7-16 whose singular values are at most 4.8e-5 of the largest
-    s = in_band.singular_values
-    assert np.all(s[6:16] < 1e-4 * s[0])

@@ -201,21 +201,43 @@ def test_modal_contribution_of_two_modes_follows_their_residues():
     rng = np.random.default_rng(1)
     shapes = _complex_shapes(rng, 2, 3)
     A, C = _realisation(np.array([12.0, 30.0]), np.array([0.02, 0.02]), shapes, rng)
-    B = rng.normal(size=(4, 1))
+    B = rng.normal(size=(4, 2))
     modes = modal_table(A, C, FS, ("a", "b", "c"))
     lines = np.linspace(5.0, 60.0, 400)
-    shares = modal_contributions(A, B, C, FS, lines, modes)
+    U = rng.normal(size=(2, 400, 2)) + 1j * rng.normal(size=(2, 400, 2))  # 2 realisations
     lam, V = np.linalg.eig(A)
     z = np.exp(2j * np.pi * lines / FS)
-    H = np.array([C @ np.linalg.solve(zk * np.eye(4) - A, B) for zk in z])
-    # the two pole pairs rebuild H exactly, so their shares add up to 1 minus twice the
-    # real cross power; each share is checked against the direct sum of its pair
+    H = np.array([C @ np.linalg.solve(zk * np.eye(4) - A, B) for zk in z])  # (N, l, m)
     residues = (C @ V)[:, :, None] * np.linalg.solve(V, B)[None]
-    for k, f in enumerate(modes.frequencies):
-        pair = np.argsort(np.abs(np.abs(np.log(lam) * FS) / (2 * np.pi) - f))[:2]
-        part = sum(residues[None, :, r] / (z[:, None, None] - lam[r]) for r in pair)
-        expected = np.sum(np.abs(part) ** 2) / np.sum(np.abs(H) ** 2)
-        assert shares[k] == pytest.approx(expected, rel=1e-9)  # same sums, rounding only
+    for inputs, drive in ((None, np.ones((1, 400, 2))), (U, U)):
+        shares = modal_contributions(A, B, C, FS, lines, modes, inputs)
+        response = np.einsum("klm,rkm->rkl", H, drive)
+        # the two pole pairs rebuild H exactly, so their shares add up to 1 minus twice the
+        # real cross power; each share is checked against the direct sum of its pair, per
+        # output over that output's power, averaged over the outputs
+        for k, f in enumerate(modes.frequencies):
+            pair = np.argsort(np.abs(np.abs(np.log(lam) * FS) / (2 * np.pi) - f))[:2]
+            part = sum(residues[None, :, r] / (z[:, None, None] - lam[r]) for r in pair)
+            own = np.einsum("klm,rkm->rkl", part, drive)
+            expected = np.mean(np.sum(np.abs(own) ** 2, axis=(0, 1))
+                               / np.sum(np.abs(response) ** 2, axis=(0, 1)))
+            assert shares[k] == pytest.approx(expected, rel=1e-9)  # same sums, rounding only
+
+
+def test_modal_contribution_weighs_every_output_alike():
+    """A mode that dominates a quiet sensor carries its share there, whatever the other
+    sensors' levels: scaling one output's row of C leaves the shares unchanged."""
+    from fnsi.modal import modal_table
+
+    rng = np.random.default_rng(2)
+    A, C = _realisation(np.array([12.0, 30.0]), np.array([0.02, 0.02]),
+                        _complex_shapes(rng, 2, 3), rng)
+    B = rng.normal(size=(4, 1))
+    lines = np.linspace(5.0, 60.0, 400)
+    loud = C * np.array([[1e4], [1.0], [1.0]])
+    shares = [modal_contributions(A, B, c, FS, lines, modal_table(A, c, FS, ("a", "b", "c")))
+              for c in (C, loud)]
+    np.testing.assert_allclose(shares[1], shares[0], rtol=1e-9)
 
 
 def _table(frequencies, damping=0.02, channels=3):

@@ -17,8 +17,11 @@ from tests.service.test_simulations import REQUEST as MODEL_SIMULATION
 PNG = b"\x89PNG\r\n\x1a\n"
 TRUE_CUBIC = 1.0e8            # N/m^3, MODEL_SIMULATION's element
 EXACT_HZ = np.sqrt([1.0e4, 3.0e4]) / (2 * np.pi)
+# block rows "auto": 11, twice the rows order 10 needs with two outputs; with i = 10 a
+# noise pole at 16.8 Hz at order 6 moves the 15.9 Hz mode's damping from 0.94 to 0.77 %,
+# so order 4 is not confirmed and the mode is dropped
 IDENTIFICATION = {
-    "band": [5.0, 40.0], "block_rows": 10, "max_order": 10,
+    "band": [5.0, 40.0], "block_rows": "auto", "max_order": 10,
     "elements": [{"kind": "polynomial", "dof": "x1", "exponent": 3}],
     "driving_points": [["F_x1", "x1"]],
 }
