@@ -342,30 +342,49 @@ def _projected_outputs(E: np.ndarray, Y: np.ndarray, basis: np.ndarray,
     return np.triu(R[qi:qi + li, qi:])
 
 
-def _noise_weight(noise_covariance: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """Cholesky factor L of the stacked-output noise covariance C_V.
+def block_gram(products: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """Real Gram matrix of a stacked data matrix from per-line products (i c x i c).
 
-    Block (a, b) is Re sum_k P_a(w_k) conj(P_b(w_k)) C_Y(k), ``basis`` (N, i) holding
-    P_p(w_k) (:func:`band_polynomials`): the covariance of the real and imaginary columns
-    of block rows a and b of the stacked outputs; block (b, a) is its transpose. Summed
-    in real arithmetic, one block row at a time (memory N i l^2), at O(N i^2 l^2 / 2)
-    cost: the Toeplitz structure of the powers, which needed only 2 i - 1 distinct
-    blocks, is lost in this basis.
+    Block (a, b) is Re sum_k P_a(w_k) conj(P_b(w_k)) G(k), ``basis`` (K, i) holding
+    P_p(w_k) (:func:`band_polynomials`) and ``products`` (K, c, c) the Hermitian G(k): with
+    G(k) = X(k) X(k)^H, the Gram matrix X_i X_i^T of the real and imaginary columns of the
+    data matrix of Eq. 9-11; with G(k) the noise covariance of X(k), their covariance.
+    Block (b, a) is the transpose of (a, b). Summed in real arithmetic, one block row at a
+    time (memory K i c^2), at O(K i^2 c^2 / 2) cost: the Toeplitz structure of the powers,
+    which needed only 2 i - 1 distinct blocks, is lost in this basis.
     """
-    N, n_out, _ = noise_covariance.shape
+    K, c, _ = products.shape
     block_rows = basis.shape[1]
-    flat = noise_covariance.reshape(N, n_out * n_out)
-    cov = np.empty((block_rows, n_out, block_rows, n_out))
+    flat = products.reshape(K, c * c)
+    gram = np.empty((block_rows, c, block_rows, c))
     for a in range(block_rows):
         pair = basis[:, a, None] * basis[:, a:].conj()   # P_a conj(P_b), b >= a
-        blocks = (pair.real.T @ flat.real - pair.imag.T @ flat.imag).reshape(-1, n_out, n_out)
-        cov[a, :, a:] = blocks.transpose(1, 0, 2)
-        cov[a:, :, a] = blocks.transpose(0, 2, 1)
-    cov = cov.reshape(block_rows * n_out, block_rows * n_out)
+        blocks = (pair.real.T @ flat.real - pair.imag.T @ flat.imag).reshape(-1, c, c)
+        gram[a, :, a:] = blocks.transpose(1, 0, 2)
+        gram[a:, :, a] = blocks.transpose(0, 2, 1)
+    return gram.reshape(block_rows * c, block_rows * c)
+
+
+def noise_weight(noise_covariance: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """Cholesky factor L of the stacked-output noise covariance C_V (:func:`block_gram` of
+    the output noise covariance (N, l, l) with ``basis`` (N, i))."""
+    cov = block_gram(noise_covariance, basis)
     # a channel without measured noise would get infinite weight: a relative ridge keeps
     # C_V positive definite and leaves such channels at the weight of the quietest one
     ridge = 1e-10 * np.trace(cov) / cov.shape[0]
     return np.linalg.cholesky(cov + ridge * np.eye(cov.shape[0]))
+
+
+def row_basis(w: np.ndarray, block_rows: int, basis: str = "orthonormal"
+              ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Values (N, i) of the data matrices' row functions on the lines' variable ``w``,
+    and their recurrence: :func:`band_polynomials` ("orthonormal"), or the paper's powers
+    w^p ("powers", recurrence None: the shift)."""
+    if basis == "orthonormal":
+        return band_polynomials(w, block_rows)
+    if basis == "powers":
+        return w[:, None] ** np.arange(block_rows), None
+    raise ValueError(f"basis must be 'orthonormal' or 'powers'; got {basis!r}")
 
 
 def _exact_svd(rows: int, k: int) -> bool:
@@ -494,6 +513,13 @@ class SubspaceDecomposition:
             A = np.linalg.solve((identity + self.warp * A).T, (A + self.warp * identity).T).T
         return A, self.observability[: self.n_outputs, :n].copy()
 
+    def rows(self) -> np.ndarray:
+        """Values (N, i) of the row functions the data matrices were built with on the
+        lines (:func:`row_basis`: the orthonormal polynomials, or the powers when
+        ``recurrence`` is None)."""
+        basis = "powers" if self.recurrence is None else "orthonormal"
+        return row_basis(warp_lines(self.spectra.z, self.warp), self.block_rows, basis)[0]
+
     def model(self, order: int) -> StateSpaceModel:
         """Identified model of order n with B^e, D^e from least squares over all lines.
 
@@ -595,16 +621,10 @@ def decompose(spectra: Spectra, *, block_rows: int, max_order: int, weighting: b
     scaled = dataclasses.replace(spectra, inputs=E / scale, input_noise_covariance=noise)
     k = min(max_order + OVERSAMPLING, n_out * block_rows)
     a = band_warp(spectra.z) if warp else 0.0
-    w = warp_lines(spectra.z, a)
-    if basis == "orthonormal":
-        rows, recurrence = band_polynomials(w, block_rows)
-    elif basis == "powers":
-        rows, recurrence = w[:, None] ** np.arange(block_rows), None
-    else:
-        raise ValueError(f"basis must be 'orthonormal' or 'powers'; got {basis!r}")
+    rows, recurrence = row_basis(warp_lines(spectra.z, a), block_rows, basis)
     Z = _projected_outputs((E / scale).reshape(R * N, q), Y.reshape(R * N, n_out),
                            np.tile(rows, (R, 1)), r_only=_exact_svd(n_out * block_rows, k))
-    L = _noise_weight(spectra.noise_covariance, rows) if weighting else None
+    L = noise_weight(spectra.noise_covariance, rows) if weighting else None
     U, s = _dominant_subspace(Z, k, L)
     gamma = U if L is None else L @ U
     return SubspaceDecomposition(

@@ -74,7 +74,7 @@ import scipy.linalg
 from fnsi.modal import Coefficient, ModalTable, continuous_poles, nonlinear_coefficients
 from fnsi.stabilisation import reflect_unstable_poles
 from fnsi.statespace import StateSpaceModel
-from fnsi.subspace import SubspaceDecomposition, _noise_weight, input_matrices, warp_lines
+from fnsi.subspace import SubspaceDecomposition, block_gram, input_matrices, noise_weight
 
 #: Most noise directions (:func:`_directions`): beyond, random combinations of the periods
 #: (each adds about 1 / sqrt(2 DRAWS) of scatter to the std, well below that of the
@@ -145,18 +145,18 @@ class Uncertainty:
 class _DataMatrix:
     """Products with the real data matrix X_i (i c x 2 K) of Eq. 9-11 without forming it.
 
-    Column k (and K + k) holds the real (imaginary) part of [X(k); w_k X(k); ...;
-    w_k^(i-1) X(k)], as :func:`fnsi.subspace.stacked_powers` builds its transpose.
+    Column k (and K + k) holds the real (imaginary) part of [P_0(w_k) X(k); ...;
+    P_(i-1)(w_k) X(k)], P_p the decomposition's row functions
+    (:meth:`fnsi.subspace.SubspaceDecomposition.rows`).
     """
 
-    def __init__(self, w: np.ndarray, block_rows: int):
-        self.i = block_rows
-        self._powers = np.cumprod(np.vstack([np.ones_like(w), np.tile(w, (block_rows - 1, 1))]),
-                                  axis=0)  # w_k^p, (i, K)
+    def __init__(self, rows: np.ndarray):
+        self.i = rows.shape[1]
+        self._basis = np.ascontiguousarray(rows.T)   # P_p(w_k), (i, K)
 
-    def powers(self, sl: slice) -> np.ndarray:
-        """w_k^p (i, lines of ``sl``)."""
-        return self._powers[:, sl]
+    def basis(self, sl: slice) -> np.ndarray:
+        """P_p(w_k) (i, lines of ``sl``)."""
+        return self._basis[:, sl]
 
     def times(self, X: np.ndarray, V: np.ndarray) -> np.ndarray:
         """X_i V for X (K, c) or (B, K, c) complex and V (2K, r) or (B, 2K, r) real (one of
@@ -174,13 +174,13 @@ class _DataMatrix:
         return self._times(X, v).reshape(self.i * c, -1)
 
     def _times(self, X: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """sum_k w_k^p X(k) v(k)^T, (i, c, r), for X (K, c) and v (K, r) complex."""
+        """sum_k P_p(w_k) X(k) v(k)^T, (i, c, r), for X (K, c) and v (K, r) complex."""
         K, c = X.shape
         out = 0.0
         for start in range(0, K, CHUNK_LINES):
             sl = slice(start, start + CHUNK_LINES)
             G = (X[sl, :, None] * v[sl, None, :]).reshape(X[sl].shape[0], -1)
-            out = out + (self.powers(sl) @ G).real
+            out = out + (self.basis(sl) @ G).real
         return out.reshape(self.i, c, -1)
 
     def times_t(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -190,7 +190,7 @@ class _DataMatrix:
         out = np.empty((*X.shape[:-2], K, U.shape[1]), dtype=complex)
         for start in range(0, K, CHUNK_LINES):
             sl = slice(start, start + CHUNK_LINES)
-            T = (self.powers(sl).T @ Up).reshape(-1, c, U.shape[1])  # (k, c, r)
+            T = (self.basis(sl).T @ Up).reshape(-1, c, U.shape[1])  # (k, c, r)
             out[..., sl, :] = (X[..., sl, None, :] @ T)[..., 0, :]
         return np.concatenate([out.real, out.imag], axis=-2)
 
@@ -286,14 +286,13 @@ def _subspace_derivatives(decomposition: SubspaceDecomposition, order: int,
     sp = decomposition.spectra
     R, N, q = sp.inputs.shape
     draws = noise.shape[0]
-    w = warp_lines(sp.z, decomposition.warp)
-    op = _DataMatrix(np.tile(w, R), decomposition.block_rows)
+    basis = decomposition.rows()
+    op = _DataMatrix(np.tile(basis, (R, 1)))
     E, Y = sp.inputs.reshape(R * N, q), sp.outputs.reshape(R * N, -1)
     dE = noise[..., :q].reshape(draws, R * N, q)
     dY = noise[..., q:].reshape(draws, R * N, -1)
+    L = noise_weight(sp.noise_covariance, basis) if decomposition.weighted else None
     rows = _InputRows(E, op)
-    L = (_noise_weight(sp.noise_covariance, w, decomposition.block_rows)
-         if decomposition.weighted else None)
     U = decomposition.observability if L is None else scipy.linalg.solve_triangular(
         L, decomposition.observability, lower=True, check_finite=False)
     X = U[:, :order] if L is None else scipy.linalg.solve_triangular(
@@ -330,16 +329,18 @@ class _InputRows:
     E_i^+ = E_i^T (E_i E_i^T)^+ and the projector Pi = I - E_i^+ E_i onto the complement,
     applied to thin matrices.
 
-    The Gram matrix (block Toeplitz, :func:`_toeplitz_gram`) needs no pivoting when E_i is
-    numerically rank-deficient (:mod:`fnsi.subspace` step 0: condition numbers of 1e17
-    in z): directions whose eigenvalue falls below :data:`RANK_TOLERANCE` times the largest
-    are dropped (fixed by rounding, not by the data). The kept ones carry a relative error
-    of at most eps / RANK_TOLERANCE (1e-4), far below what a standard deviation needs.
+    The Gram matrix (:func:`fnsi.subspace.block_gram`) is taken by an eigendecomposition,
+    which needs no pivoting should E_i be numerically rank-deficient (the paper's powers
+    z^p on a narrow band, ``basis="powers"``: condition numbers of 1e17): directions whose
+    eigenvalue falls below :data:`RANK_TOLERANCE` times the largest are dropped (fixed by
+    rounding, not by the data). The kept ones carry a relative error of at most
+    eps / RANK_TOLERANCE (1e-4), far below what a standard deviation needs.
     """
 
     def __init__(self, E: np.ndarray, op: _DataMatrix):
         self.E, self.op = E, op
-        lam, V = np.linalg.eigh(_toeplitz_gram(E, op.powers(slice(None))))
+        gram = block_gram(E[:, :, None] * E.conj()[:, None, :], op.basis(slice(None)).T)
+        lam, V = np.linalg.eigh(gram)
         keep = lam > RANK_TOLERANCE * lam[-1]
         self.inverse = (V[:, keep] / lam[keep]) @ V[:, keep].T  # (E_i E_i^T)^+
 
@@ -351,24 +352,6 @@ class _InputRows:
         """E_i^T (E_i E_i^T)^+ C for C (..., q i, r): E_i^+ C, (..., 2K, r); the projection
         of X onto the row space of E_i is expand(coordinates(X))."""
         return _columns(lambda Z: self.op.times_t(self.E, self.inverse @ Z), C)
-
-
-def _toeplitz_gram(E: np.ndarray, powers: np.ndarray) -> np.ndarray:
-    """E_i E_i^T (q i x q i) from its 2 i - 1 distinct blocks, O(K q^2 i) instead of
-    O(K q^2 i^2).
-
-    With the real and imaginary parts side by side and |w_k| = 1 (the lines and their
-    warped variable lie on the unit circle), block (p, p') is Re S_(p - p') with
-    S_d = sum_k w_k^d E(k) E(k)^H, and S_-d = S_d^H.
-    """
-    K, q = E.shape
-    i = powers.shape[0]
-    S = (powers @ (E[:, :, None] * E.conj()[:, None, :]).reshape(K, q * q)).real
-    S = S.reshape(i, q, q)
-    lag = np.arange(i)[:, None] - np.arange(i)[None, :]
-    blocks = np.where((lag >= 0)[:, :, None, None], S[np.abs(lag)],
-                      np.swapaxes(S[np.abs(lag)], -1, -2))
-    return blocks.transpose(0, 2, 1, 3).reshape(i * q, i * q)
 
 
 def _columns(apply, X: np.ndarray) -> np.ndarray:
