@@ -358,7 +358,7 @@ def _cmd_study_diagnose(args: argparse.Namespace) -> int:
         print(f"{rank}. {candidate.effect.value}: validation NRMSE "
               f"{candidate.validation_nrmse_percent:.3g} % "
               f"(x{candidate.error_reduction_factor:.3g} better)"
-              f"{'' if candidate.beats_noise_floor else ', within the noise'}"
+              f"{'' if candidate.beats_noise_floor else ', not claimed'}"
               f"{'' if candidate.concern is None else ', physically implausible'}")
         print(f"   {candidate.explanation}")
         if candidate.element is not None:

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fnsi.claim import Spectra, validation_spectra
 from fnsi.errors import ModelErrors, json_float, model_errors
 from fnsi.identification import IdentificationResult, IdentificationSettings, identify
 from fnsi.measurement import Measurement
@@ -39,15 +40,21 @@ from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve
-from fnsi.validation import compare_identified
+from fnsi.validation import ERROR_BAND_FACTOR, compare_identified
 
 if TYPE_CHECKING:
     from fnsi.diagnosis import Diagnosis, DiagnosisSettings
 
 Progress = Callable[[float, str], None]
 FORMAT = "fnsi-study/1"
-"""Error spectra reach this multiple of the band's upper edge (harmonics of a
-nonlinearity land there), capped at Nyquist."""
+AUTO_REFINE_FACTOR = 3.0
+"""A revision whose FNSI model misses the validation data by more than this multiple of
+the noise floor is refined by its simulation error (:meth:`Study._refined_if_needed`)."""
+REPAIRS = (("implicit", ""),
+           ("explicit", "its nonlinear feed-through evaluated explicitly (the implicit "
+                        "output equation has no solution on the validation input)"))
+"""Simulations tried in turn, with the words recorded when one other than the first runs
+(:mod:`fnsi.simulation`, ``feedthrough``)."""
 
 
 def pooled_percent(values: np.ndarray, power: np.ndarray) -> float:
@@ -90,6 +97,9 @@ class Evaluation:
         not be simulated).
     failure : str or None
         Why the model could not be simulated (e.g. unstable), else None.
+    repairs : tuple of str
+        What was changed so that the identified model could be simulated (reflected
+        unstable poles, an explicit output equation), in words.
     """
 
     elements: tuple[NonlinearElement, ...]
@@ -99,6 +109,7 @@ class Evaluation:
     excited: np.ndarray | None
     nrmse_percent: float = math.inf
     failure: str | None = None
+    repairs: tuple[str, ...] = ()
 
     @property
     def order(self) -> int:
@@ -183,6 +194,8 @@ class Revision:
     separability : tuple of dict
         :meth:`fnsi.separability.Separability.to_json` of every element: whether the
         data tell its force apart from the others' (empty for revisions saved before).
+    repairs : tuple of str
+        What was changed so that the model could be simulated (:meth:`Study.evaluate`).
     """
 
     number: int
@@ -201,6 +214,13 @@ class Revision:
     failure: str | None = None
     refinement: dict | None = None
     separability: tuple[dict, ...] = ()
+    repairs: tuple[str, ...] = ()
+
+    @property
+    def refined(self) -> bool:
+        """The model was refined by its simulation error (by the study's settings or
+        because the study decided so)."""
+        return bool(self.refinement) and self.refinement.get("iterations", 0) > 0
 
     def to_json(self, *, spectra: bool = False) -> dict:
         """JSON-ready revision: model summary and validation errors (with the error per
@@ -232,6 +252,7 @@ class Revision:
             "failure": self.failure,
             "refinement": self.refinement,
             "separability": list(self.separability),
+            "repairs": list(self.repairs),
         }
 
 
@@ -326,6 +347,17 @@ class Study:
         zero = np.zeros_like(measured[:, : measured.shape[1] // kept])
         return model_errors(measured, zero, self.validation.fs, periods=kept).noise_floor_percent
 
+    @functools.cached_property
+    def validation_spectra(self) -> Spectra:
+        """Period-averaged validation spectra and their noise on the lines of the error
+        spectra (:func:`fnsi.claim.validation_spectra`; the claim rule's data)."""
+        measured, kept = self._validation_kept
+        n = measured.shape[1] // kept
+        frequencies = np.fft.rfftfreq(n, d=1.0 / self.validation.fs)
+        high = min(self.validation.fs / 2, ERROR_BAND_FACTOR * self.settings.band[1])
+        lines = np.flatnonzero((frequencies > 0.0) & (frequencies <= high))
+        return validation_spectra(measured, kept, lines)
+
     @property
     def noise_floor_percent(self) -> float:
         """Overall noise floor of the validation data [%]: the NRMSE a perfect model
@@ -352,32 +384,48 @@ class Study:
 
     # -- revisions -------------------------------------------------------------------------
     def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
-                 progress: Progress | None = None) -> Evaluation:
+                 progress: Progress | None = None, *, refine: bool | None = None
+                 ) -> Evaluation:
         """Identify a model on the estimation data and run it on the validation data.
 
-        The study is not changed. A model that cannot be simulated (unstable, diverging)
-        is returned with ``failure`` set instead of raising.
+        The study is not changed. A model that cannot be simulated is repaired before it
+        is given up (:data:`REPAIRS`, each named in ``Evaluation.repairs``): unstable
+        poles are reflected inside the unit circle (same frequency, B and D fitted
+        again), and an output equation that folds is solved explicitly. A model still not
+        simulable is returned with ``failure`` set instead of raising. ``refine``
+        overrides the study's ``settings.refine``.
         """
         elements = tuple(elements)
-        settings = replace(self.settings, elements=elements, order=order)
+        settings = replace(self.settings, elements=elements, order=order,
+                           refine=self.settings.refine if refine is None else refine)
         report = progress or (lambda fraction, message: None)
-        result = identify(self.estimation, settings,
-                          lambda f, m: report(0.9 * f, m))
+        # reflection changes nothing in a stable model, so it costs nothing to ask for
+        result = identify(self.estimation, settings, lambda f, m: report(0.9 * f, m),
+                          reflect_unstable=True)
+        repairs = (("unstable poles reflected inside the unit circle, B and D fitted "
+                    "again",) if any("were reflected inside" in w for w in result.warnings)
+                   else ())
         report(0.9, "simulating the validation input")
-        try:
-            comparison = compare_identified(result, self.validation)
-        except ValueError as error:
-            # the identification's warnings name the stable orders of an unstable model,
-            # or the poles the automatic order reflected
-            return Evaluation(elements, result, None, None, None,
-                              failure="; ".join((str(error), *result.warnings)))
+        failures = []
+        for feedthrough, words in REPAIRS:
+            try:
+                comparison = compare_identified(result, self.validation, feedthrough)
+            except ValueError as error:
+                failures.append(str(error))
+                continue
+            repairs += (words,) if words else ()
+            break
+        else:
+            return Evaluation(elements, result, None, None, None, failure="; ".join(
+                (*failures, *result.warnings)), repairs=repairs)
         errors = comparison.errors
         validation = self.validation.select(inputs=result.model.input_names,
                                             outputs=result.model.output_names)
         report(1.0, "validated")
         return Evaluation(elements, result, comparison.simulated, errors,
                           self._excited_lines(validation, errors.frequencies),
-                          pooled_percent(errors.nrmse_percent, self.channel_power))
+                          pooled_percent(errors.nrmse_percent, self.channel_power),
+                          repairs=repairs)
 
     def _excited_lines(self, validation: Measurement, frequencies: np.ndarray) -> np.ndarray:
         """Lines where the validation input has power (the others show distortion)."""
@@ -387,9 +435,33 @@ class Study:
         lines = np.rint(frequencies * validation.period_length / validation.fs).astype(int)
         return power[lines] > 1e-6 * power.max()
 
+    def _refined_if_needed(self, evaluation: Evaluation, progress: Progress | None
+                           ) -> Evaluation:
+        """The revision refined by its simulation error when the loop needs it.
+
+        The study decides, not the user: when FNSI's model with nonlinear elements misses
+        the validation data by more than :data:`AUTO_REFINE_FACTOR` times the noise floor
+        (bases driven outside the band, noisy bases), the model is refined
+        (:mod:`fnsi.refinement`) and kept if it validates better; the diagnosis of such a
+        revision refines its candidates too (:attr:`Revision.refined`). A linear revision
+        stays FNSI's: the diagnosis screens with its poles.
+        """
+        floor = self.noise_floor_percent
+        error = evaluation.nrmse_percent
+        if (self.settings.refine or not evaluation.elements or not math.isfinite(floor)
+                or not math.isfinite(error) or error <= AUTO_REFINE_FACTOR * floor):
+            return evaluation
+        refined = self.evaluate(evaluation.elements, evaluation.order, progress, refine=True)
+        if not refined.nrmse_percent < error:
+            return evaluation
+        return replace(refined, repairs=(*refined.repairs, (
+            f"refined by its simulation error: FNSI's model missed the validation data by "
+            f"{error / floor:.3g} times the noise floor ({error:.3g} % -> "
+            f"{refined.nrmse_percent:.3g} %)")))
+
     def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
                 progress: Progress | None) -> Revision:
-        evaluation = self.evaluate(elements, order, progress)
+        evaluation = self._refined_if_needed(self.evaluate(elements, order, progress), progress)
         result = evaluation.identification
         revision = Revision(
             number=len(self.revisions), note=note, order=order, elements=elements,
@@ -400,6 +472,7 @@ class Study:
             noise_floor_percent=self.noise_floor_percent, failure=evaluation.failure,
             refinement=None if result.refinement is None else result.refinement.to_json(),
             separability=tuple(s.to_json() for s in result.separability),
+            repairs=evaluation.repairs,
         )
         self.revisions.append(revision)
         return revision
@@ -481,13 +554,13 @@ class Study:
                 "nrmse_db": json_float(20 * math.log10(r.nrmse_percent / 100))
                 if math.isfinite(r.nrmse_percent) and r.nrmse_percent > 0 else None,
                 "noise_floor_percent": json_float(r.noise_floor_percent),
-                "failure": r.failure,
+                "failure": r.failure, "repairs": list(r.repairs),
             })
         return rows
 
     def history_table(self) -> str:
         """The error history as a plain-text table (for the CLI); a revision whose model
-        could not be simulated says why below its row."""
+        could not be simulated says why below its row, one that was repaired how."""
         lines = [f"{'rev':>3}  {'order':>5}  {'NRMSE %':>9}  {'floor %':>8}  change"]
         for row in self.history():
             e = row["nrmse_percent"]
@@ -497,6 +570,7 @@ class Study:
                          f"{'-' if f is None else f'{f:8.3g}':>8}  {row['note']}")
             if row["failure"]:
                 lines.append(f"{'':>3}  failed: {row['failure']}")
+            lines += [f"{'':>3}  repaired: {words}" for words in row["repairs"]]
         return "\n".join(lines)
 
     def to_json(self, *, spectra: bool = False) -> dict:
@@ -678,4 +752,5 @@ def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study)
                              else item["noise_floor_percent"]),
         failure=item["failure"], refinement=item.get("refinement"),
         separability=tuple(item.get("separability", ())),
+        repairs=tuple(item.get("repairs", ())),
     )

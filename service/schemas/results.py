@@ -186,11 +186,18 @@ class DiagnosisJobResult(_Document):
     nrmse_before_percent: float | None = Field(description="Validation NRMSE of that "
                                                "revision [%].")
     noise_floor_percent: float | None = Field(description="Noise floor [%].")
-    found: bool = Field(description="The best candidate beats the noise floor.")
+    found: bool = Field(description="The best candidate passes the claim rule with a "
+                        "physically plausible coefficient.")
     summary: str = Field(description="The verdict in words.")
     candidates: list[Candidate] = Field(description="Candidates, best first.")
     notes: list[str] = Field(description="Remarks on the diagnosis.")
     timings: dict[str, float] = Field(description="Wall time per stage [s].")
+    unexplained: dict[str, Any] | None = Field(
+        None, description="Where the revision's validation error lies beyond the noise: "
+        "ratio_to_floor and groups (channel, lines: excited or not, below, in or above "
+        "the band; share of the excess error; over_noise_db).")
+    claim_rule: str | None = Field(None, description="The rule a candidate must pass to "
+                                   "be claimed, with its numbers.")
 
 
 # Exactly one kind matches a document: each has required fields the others lack. A

@@ -140,8 +140,9 @@ class Candidate(BaseModel):
         "model could not be simulated.", examples=[0.49])
     error_reduction_factor: float | None = Field(
         description="Validation NRMSE before / after [-].", examples=[51.0])
-    beats_noise_floor: bool = Field(description="The error it removes exceeds the noise "
-                                    "floor (not a fit to noise).")
+    beats_noise_floor: bool = Field(description="It passes the claim rule: its improvement "
+                                    "is significant against the period-to-period noise "
+                                    "and worth the parameters it adds (see claim).")
     screening_reduction: float | None = Field(
         None, description="Fraction of the fixed-pole residual it explains [-].")
     log10_real_imag: float | None = Field(
@@ -158,6 +159,13 @@ class Candidate(BaseModel):
         "effect (a stop with negative contact stiffness, friction or damping that feeds "
         "energy in); such candidates rank after the convincing ones. Null when plausible.",
         examples=[None])
+    claim: dict[str, Any] | None = Field(
+        None, description="The claim rule's test: z (standardised improvement against the "
+        "period-to-period noise) and z_critical, significant, parameters, "
+        "removed_fraction and required_fraction of the error above the floor, "
+        "worth_parameters, rule (why it is not claimed, in words).")
+    repairs: list[str] = Field(default_factory=list, description=(
+        "What was changed so that its model could be simulated."))
 
 
 class StudyJob(BaseModel):
@@ -219,6 +227,9 @@ class RevisionRecord(BaseModel):
         None, description="Per element: whether the data tell its force apart from the "
         "others' (unexplained, partners, confounded, concern; see the identification "
         "result's separability).")
+    repairs: list[str] = Field(default_factory=list, description=(
+        "What was changed so that the model could be simulated (reflected unstable poles, "
+        "an explicit output equation), in words."))
 
 
 class Revision(RevisionRecord):
@@ -240,6 +251,9 @@ class HistoryRow(BaseModel):
     nrmse_db: float | None = Field(description="Validation NRMSE [dB].", examples=[-46.2])
     noise_floor_percent: float | None = Field(description="Noise floor [%].", examples=[0.36])
     failure: str | None = Field(None, description="Why the model could not be simulated.")
+    repairs: list[str] = Field(default_factory=list, description=(
+        "What was changed so that the model could be simulated (reflected unstable poles, "
+        "an explicit output equation), in words."))
 
 
 class StudyDiagnosis(BaseModel):
@@ -248,7 +262,8 @@ class StudyDiagnosis(BaseModel):
     job_id: str = Field(description="Diagnosis job.")
     state: JobState = Field(description="Job state.")
     revision: int | None = Field(None, description="Diagnosed revision (once known).")
-    found: bool | None = Field(None, description="The best candidate beats the noise floor.")
+    found: bool | None = Field(None, description="The best candidate passes the claim rule "
+                               "with a physically plausible coefficient.")
     summary: str | None = Field(None, description="The verdict in words.")
     candidates: list[Candidate] = Field(default_factory=list,
                                         description="Candidates, best first.")

@@ -165,7 +165,7 @@ def test_bad_inputs_say_what_to_change(data, tmp_path):
     assert math.isfinite(Study(estimation, validation, SETTINGS).noise_floor_percent)
 
 
-def test_history_table_says_why_a_revision_failed():
+def test_an_unstable_revision_is_repaired_and_the_table_says_how(tmp_path):
     from fnsi.identification import IdentificationSettings
     from fnsi.smallsat import simulate_preset
 
@@ -175,9 +175,14 @@ def test_history_table_says_why_a_revision_failed():
         {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5})
     settings = IdentificationSettings(outputs=("NC2w_Z", "NC2b_Z", "W_Z"), band=(5.0, 50.0),
                                       block_rows=20, max_order=20, order=14, elements=(stop,))
-    unstable = Study.create(record, record, settings)
-    failure = unstable.revisions[0].failure
-    assert "unstable" in failure and "stable: [" in failure   # names the stable orders
-    table = unstable.history_table().splitlines()
-    assert "failed" in table[1] and table[2].strip() == f"failed: {failure}"
-    assert unstable.history()[0]["failure"] == failure
+    study = Study.create(record, record, settings)
+    revision = study.revisions[0]
+    # repaired, not dropped: the pole reflected inside the unit circle, the model runs
+    assert revision.failure is None and math.isfinite(revision.nrmse_percent)
+    assert np.max(np.abs(np.linalg.eigvals(revision.model.A))) < 1.0
+    assert revision.repairs and "reflected inside the unit circle" in revision.repairs[0]
+    table = study.history_table().splitlines()
+    assert "failed" not in table[1] and table[2].strip() == f"repaired: {revision.repairs[0]}"
+    assert study.history()[0]["repairs"] == list(revision.repairs)
+    reloaded = Study.load(study.save(tmp_path / "repaired"))
+    assert reloaded.revisions[0].repairs == revision.repairs
