@@ -28,7 +28,7 @@ A candidate whose model cannot be simulated is repaired, not dropped
 (:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
 equation). A candidate is *claimed* by the rule of :mod:`fnsi.claim`: its improvement is
 significant against the period-to-period noise (one-sided z test), each parameter it adds
-removes at least 10 % of the error above the noise floor, and its coefficient is
+lowers the RMS error above the noise floor by 10 %, and its coefficient is
 physically plausible (a stop with negative contact stiffness, or friction or damping that
 feeds energy in, lowers the error for another reason: :func:`implausibility`). Claimed
 candidates come first, the simpler winning unless the richer explains clearly more. When
@@ -54,7 +54,7 @@ from scipy.optimize import minimize, minimize_scalar
 
 from fnsi.claim import (
     ALPHA,
-    GAIN_PER_PARAMETER,
+    FALL_PER_PARAMETER,
     ClaimTest,
     Spectra,
     Unexplained,
@@ -942,9 +942,9 @@ def claim_rule(candidates: int) -> str:
             f"significant against the period-to-period noise (one-sided z test on the "
             f"noise-weighted squared error per line and channel, family-wise level "
             f"{100 * ALPHA:g} % over the {candidates} candidates: z > "
-            f"{critical_z(candidates):.2g}), when each parameter it adds removes at least "
-            f"{100 * GAIN_PER_PARAMETER:.0f} % of the error above the noise floor, and when "
-            f"its coefficient is physically plausible")
+            f"{critical_z(candidates):.2g}), when each parameter it adds lowers the RMS "
+            f"error above the noise floor by at least {100 * FALL_PER_PARAMETER:.0f} %, and "
+            f"when its coefficient is physically plausible")
 
 
 def _summary(candidates: Sequence[Candidate], before: float, floor: float,
