@@ -267,6 +267,26 @@ def _modal_json(result: IdentificationResult) -> dict:
             "damping_ratio": modal.damping_ratios.tolist()}
 
 
+def law_name(element: NonlinearElement) -> str:
+    """Label of an element by its law and location: ``"cubic spring x3"``,
+    ``"quadratic spring x2-x3"``, ``"one-sided stop x4"``, ``"Coulomb friction x1"``
+    (the element's own ``name`` says only its kind, the same for x^2 and x^3)."""
+    kind = element.kind.value
+    if kind == "polynomial":
+        law = {2.0: "quadratic spring", 3.0: "cubic spring"}.get(
+            float(element.exponent), f"x^{element.exponent:g} spring")
+    elif kind == "clearance":
+        gn, gp = element.gaps
+        law = ("one-sided stop" if math.isinf(gn) or math.isinf(gp) else
+               "clearance" if math.isclose(gn, gp) else "asymmetric clearance")
+    else:
+        law = {"coulomb_friction": "Coulomb friction", "quadratic_damping":
+               "quadratic damper", "spline": "spline spring",
+               "piecewise_linear": "piecewise-linear spring"}.get(kind, kind)
+    where = element.dof if element.ref is None else f"{element.dof}-{element.ref}"
+    return f"{law} {where}"
+
+
 def _check_pair(estimation: Measurement, validation: Measurement) -> None:
     """Estimation and validation data must describe the same test set-up."""
     for name in ("input_names", "output_names", "fs", "quantity"):
@@ -511,8 +531,8 @@ class Study:
                                                     parent_number=parent.number)
         new_order = parent.identified_order if order is None else order
         if note is None:
-            words = [f"add {e.name}" for e in added]
-            words += [f"remove {parent.elements[k].name}" for k in removed]
+            words = [f"add {law_name(e)}" for e in added]
+            words += [f"remove {law_name(parent.elements[k])}" for k in removed]
             if new_order != parent.identified_order:
                 words.append(f"order {new_order}")
             note = ", ".join(words) or "re-identified"
@@ -549,7 +569,7 @@ class Study:
         for r in self.revisions:
             rows.append({
                 "number": r.number, "note": r.note, "order": r.identified_order,
-                "elements": [e.name for e in r.elements],
+                "elements": [law_name(e) for e in r.elements],
                 "nrmse_percent": json_float(r.nrmse_percent),
                 "nrmse_db": json_float(20 * math.log10(r.nrmse_percent / 100))
                 if math.isfinite(r.nrmse_percent) and r.nrmse_percent > 0 else None,
