@@ -682,14 +682,15 @@ def compare_kinds(problem: ScreeningProblem, score: LocationScore) -> list[Propo
 def added_parameters(effect: Effect, element: NonlinearElement | None) -> int:
     """Parameters a candidate adds, for the claim rule's penalty (:mod:`fnsi.claim`).
 
-    Its coefficient plus what the diagnosis searched for it: each finite clearance gap,
-    the friction's smoothing width. One more mode: its frequency, damping and modal
-    scale (3).
+    Its coefficient plus what the diagnosis searched for it: the clearance's gaps (one
+    for a symmetric clearance or a one-sided stop, two for an asymmetric clearance), the
+    friction's smoothing width. One more mode: its frequency, damping and modal scale (3).
     """
     if effect is Effect.MISSING_MODE or element is None:
         return 3
     if effect is Effect.CLEARANCE:
-        return 1 + sum(math.isfinite(g) for g in element.gaps)
+        symmetric = element.gap is not None and element.side == "both"
+        return 2 if symmetric else 1 + sum(math.isfinite(g) for g in element.gaps)
     if effect is Effect.COULOMB_FRICTION:
         return 2
     return 1

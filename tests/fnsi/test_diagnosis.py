@@ -35,6 +35,7 @@ from fnsi.diagnosis import (
     Location,
     LocationScore,
     _summary,
+    added_parameters,
     candidate_locations,
     implausibility,
     kind_locations,
@@ -361,6 +362,20 @@ def test_energy_and_contact_signs_are_judged(kind, effect, extra, words):
     assert implausibility(effect, physical) is None
     null = implausibility(effect, dataclasses.replace(element, coefficients=(0.0,)))
     assert null is not None and "is zero (0)" in null
+
+
+def test_parameters_counted_for_the_claim_penalty():
+    def clearance(**gaps):
+        return NonlinearElement("clearance", "x1", **gaps)
+
+    assert added_parameters(Effect.CLEARANCE, clearance(gap=1e-3)) == 2
+    assert added_parameters(Effect.CLEARANCE, clearance(gap_positive=1e-3,
+                                                         side="positive")) == 2
+    assert added_parameters(Effect.CLEARANCE, clearance(gap_negative=2e-3,
+                                                         gap_positive=1e-3)) == 3
+    cubic = NonlinearElement("polynomial", "x1", exponent=3.0)
+    assert added_parameters(Effect.CUBIC_STIFFNESS, cubic) == 1
+    assert added_parameters(Effect.MISSING_MODE, None) == 3
 
 
 def test_softening_and_asymmetry_are_plausible_either_sign():
