@@ -106,14 +106,18 @@ def _int_or_auto(text: str) -> int | str:
     return text if text == "auto" else int(text)
 
 
-def _identification_settings(args: argparse.Namespace):
-    """IdentificationSettings from the options of :func:`_add_identification_options`."""
+def _identification_settings(args: argparse.Namespace, measurement):
+    """IdentificationSettings from the options of :func:`_add_identification_options`;
+    the band defaults to the lines the input of ``measurement`` excites."""
+    from fnsi.distortion import excited_band
     from fnsi.identification import IdentificationSettings
 
+    band = (excited_band(measurement, args.discard_periods) if args.band is None
+            else (args.band[0], args.band[1]))
     return IdentificationSettings(
         inputs=_channels(args.inputs),
         outputs=_channels(args.outputs),
-        band=(args.band[0], args.band[1]),
+        band=band,
         block_rows=_int_or_auto(args.block_rows),
         order=_int_or_auto(args.order),
         max_order=args.max_order,
@@ -139,7 +143,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from fnsi.report import identification_report
 
     measurement = _read(args.dataset, args)
-    settings = _identification_settings(args)
+    settings = _identification_settings(args, measurement)
     result = identify(measurement, settings, progress=_progress)
     report = identification_report(result, settings, measurement, progress=_progress)
     print(file=sys.stderr)
@@ -284,8 +288,10 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--inputs", help="comma-separated input names (default: all; the "
                         "input columns of a CSV)")
     parser.add_argument("--outputs", help="comma-separated output names (default: all)")
-    parser.add_argument("--band", nargs=2, type=float, default=(5.0, 50.0),
-                        metavar=("LOW_HZ", "HIGH_HZ"))
+    parser.add_argument("--band", nargs=2, type=float, default=None,
+                        metavar=("LOW_HZ", "HIGH_HZ"),
+                        help="analysis band (default: the lowest to the highest frequency "
+                             "the input excites)")
     parser.add_argument("--block-rows", default="auto",
                         help="the paper's i, or 'auto' (from the harmonic lines)")
     parser.add_argument("--order", default="auto", help="model order n, or 'auto'")
@@ -358,8 +364,9 @@ def _cmd_study_create(args: argparse.Namespace) -> int:
     if (folder / "study.json").exists():
         raise ValueError(f"{folder} already holds a study; choose another folder or add a "
                          f"revision with 'fnsi study revise {folder}'")
-    study = Study.create(_read(args.estimation, args), _read(args.validation, args),
-                         _identification_settings(args),
+    estimation = _read(args.estimation, args)
+    study = Study.create(estimation, _read(args.validation, args),
+                         _identification_settings(args, estimation),
                          connections=[_pair(text) for text in args.connection],
                          name=args.name, note=args.note, progress=_progress)
     print(file=sys.stderr)
@@ -417,7 +424,7 @@ def _cmd_study_diagnose(args: argparse.Namespace) -> int:
             print(f"{rank}. {candidate.effect.value}: validation NRMSE "
                   f"{candidate.validation_nrmse_percent:.3g} % "
                   f"(x{candidate.error_reduction_factor:.3g} better)"
-                  f"{'' if candidate.beats_noise_floor else ', within the noise'}"
+                  f"{'' if candidate.beats_noise_floor else ', not claimed'}"
                   f"{'' if candidate.concern is None else ', physically implausible'}")
         print(f"   {candidate.explanation}")
         if candidate.element is not None:

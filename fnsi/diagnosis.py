@@ -24,13 +24,19 @@ candidate missing effects in three stages, from cheap to expensive:
    validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
    frequency, Section II.E). A missing linear mode (order + 2) is always validated.
 
-Candidates are ranked by validation NRMSE, the convincing ones first: a stop with
-negative contact stiffness, or friction or damping that feeds energy in, lowers the error
-for another reason and is reported with that concern (:func:`implausibility`) after them.
-A candidate *beats the noise floor* when the
-squared NRMSE it removes exceeds the squared noise floor, i.e. when the improvement is
-larger than anything a perfect model could still gain from noise; when none does, the
-diagnosis says so (no false alarm on a linear structure).
+A candidate whose model cannot be simulated is repaired, not dropped
+(:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
+equation). A candidate is *claimed* by the rule of :mod:`fnsi.claim`: its improvement is
+significant against the period-to-period noise (one-sided z test), each parameter it adds
+lowers the RMS error above the noise floor by 10 %, and its coefficient is
+physically plausible (a stop with negative contact stiffness, or friction or damping that
+feeds energy in, lowers the error for another reason: :func:`implausibility`). Claimed
+candidates come first, the simpler winning unless the richer explains clearly more. When
+none is claimed the summary gives the rule, the numbers that stopped the best candidate,
+and, while the error stays above three times the floor, what remains unexplained and
+where (:func:`fnsi.claim.unexplained`); it says that nothing is missing only near the
+floor. Elements the revision already holds (same law at the same location) are never
+proposed.
 """
 
 from __future__ import annotations
@@ -46,6 +52,19 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
+from fnsi.claim import (
+    ALPHA,
+    FALL_PER_PARAMETER,
+    ClaimTest,
+    Spectra,
+    Unexplained,
+    claim_test,
+    critical_z,
+    improvement_z,
+    penalised_excess,
+    unexplained,
+)
+from fnsi.distortion import DistortionAnalysis, analyse_distortion
 from fnsi.errors import json_float
 from fnsi.nonlinear import NonlinearElement
 from fnsi.screening import ScreeningProblem
@@ -272,6 +291,13 @@ class Candidate:
         with negative contact stiffness, :func:`implausibility`), else None. Such a
         candidate ranks after the convincing ones: something acts at its location, but
         not the effect it names.
+    claim : ClaimTest or None
+        The claim rule's test (:mod:`fnsi.claim`): significance against the
+        period-to-period noise and the penalty for its parameters. ``beats_noise_floor``
+        is its verdict.
+    repairs : tuple of str
+        What was changed so that its model could be simulated (:meth:`fnsi.study.Study.
+        evaluate`).
     """
 
     effect: Effect
@@ -287,11 +313,18 @@ class Candidate:
     explanation: str
     failure: str | None = None
     concern: str | None = None
+    claim: ClaimTest | None = None
+    repairs: tuple[str, ...] = ()
 
     @property
     def convincing(self) -> bool:
-        """It beats the noise floor with a physically plausible coefficient."""
+        """It passes the claim rule with a physically plausible coefficient."""
         return self.beats_noise_floor and self.concern is None
+
+    @property
+    def parameters(self) -> int:
+        """Parameters the candidate adds (:func:`added_parameters`)."""
+        return added_parameters(self.effect, self.element)
 
     def to_json(self) -> dict:
         """The HTTP contract's candidate object."""
@@ -309,6 +342,8 @@ class Candidate:
             "explanation": self.explanation,
             "failure": self.failure,
             "concern": self.concern,
+            "claim": None if self.claim is None else self.claim.to_json(),
+            "repairs": list(self.repairs),
         }
 
 
@@ -338,6 +373,11 @@ class Diagnosis:
         What could not be done and why (e.g. a curve the data cannot support).
     units : ModelUnits
         Units of the study's channels: curves and screening shapes are in them.
+    unexplained : Unexplained or None
+        Where the revision's validation error lies beyond the noise (channels, parts of
+        the spectrum, level), :func:`fnsi.claim.unexplained`.
+    rule : str
+        The claim rule with its numbers (:func:`claim_rule`).
     """
 
     revision: int
@@ -351,10 +391,12 @@ class Diagnosis:
     timings: dict[str, float]
     notes: tuple[str, ...] = ()
     units: ModelUnits = field(default_factory=lambda: ModelUnits("", "", "displacement"))
+    unexplained: Unexplained | None = None
+    rule: str = ""
 
     @property
     def found(self) -> bool:
-        """True when the best candidate beats the noise floor and is physically plausible."""
+        """True when the best candidate passes the claim rule and is physically plausible."""
         return bool(self.candidates) and self.candidates[0].convincing
 
     def to_json(self) -> dict:
@@ -374,6 +416,8 @@ class Diagnosis:
             "stiffness_curves": [c.to_json(self.units) for c in self.curves],
             "timings": dict(self.timings),
             "notes": list(self.notes),
+            "unexplained": None if self.unexplained is None else self.unexplained.to_json(),
+            "claim_rule": self.rule,
         }
 
 
@@ -640,17 +684,21 @@ def compare_kinds(problem: ScreeningProblem, score: LocationScore) -> list[Propo
 
 
 # -- stage 3: validation and explanation -------------------------------------------------------
-def beats_noise_floor(before: float, after: float, floor: float) -> bool:
-    """True when a candidate's improvement is real: the squared NRMSE it removes exceeds
-    the squared noise floor, and the NRMSE falls by at least 10 %.
+def added_parameters(effect: Effect, element: NonlinearElement | None) -> int:
+    """Parameters a candidate adds, for the claim rule's penalty (:mod:`fnsi.claim`).
 
-    Without a noise floor (one period), a fall of the NRMSE by 20 % is required.
+    Its coefficient plus what the diagnosis searched for it: the clearance's gaps (one
+    for a symmetric clearance or a one-sided stop, two for an asymmetric clearance), the
+    friction's smoothing width. One more mode: its frequency, damping and modal scale (3).
     """
-    if not math.isfinite(after) or after >= 0.9 * before:
-        return False
-    if not math.isfinite(floor):
-        return after < 0.8 * before
-    return before**2 - after**2 > floor**2
+    if effect is Effect.MISSING_MODE or element is None:
+        return 3
+    if effect is Effect.CLEARANCE:
+        symmetric = element.gap is not None and element.side == "both"
+        return 2 if symmetric else 1 + sum(math.isfinite(g) for g in element.gaps)
+    if effect is Effect.COULOMB_FRICTION:
+        return 2
+    return 1
 
 
 def implausibility(effect: Effect, element: NonlinearElement | None) -> str | None:
@@ -702,11 +750,20 @@ def implausibility(effect: Effect, element: NonlinearElement | None) -> str | No
 
 
 def rank_candidates(candidates: Sequence[Candidate]) -> list[Candidate]:
-    """Candidates best first: the convincing ones (beyond the noise floor and physically
-    plausible, :attr:`Candidate.convincing`) before the others, each group by validation
-    NRMSE, then by the fixed-pole reduction."""
-    return sorted(candidates, key=lambda c: (not c.convincing, c.validation_nrmse_percent,
-                                             -(c.screening_reduction or 0.0)))
+    """Candidates best first: the convincing ones (claimed by the rule of
+    :mod:`fnsi.claim` and physically plausible, :attr:`Candidate.convincing`) before the
+    others; the convincing ones by their error above the floor penalised for their
+    parameters (:func:`fnsi.claim.penalised_excess`: the simpler wins unless the richer
+    explains clearly more), then fewer parameters; the others by validation NRMSE; ties
+    by the fixed-pole reduction."""
+    def key(c: Candidate) -> tuple:
+        floor = c.claim.floor if c.claim is not None else math.nan
+        penalised = (penalised_excess(c.validation_nrmse_percent, floor, c.parameters)
+                     if c.convincing else c.validation_nrmse_percent)
+        return (not c.convincing, penalised, c.parameters if c.convincing else 0,
+                c.validation_nrmse_percent, -(c.screening_reduction or 0.0))
+
+    return sorted(candidates, key=key)
 
 
 def _coefficient_quality(evaluation: Evaluation, element: NonlinearElement
@@ -783,62 +840,160 @@ def _shape_words(proposal: Proposal, score: LocationScore | None, length: str) -
     return f"; the spline curve explains {100 * score.reduction:.0f} % of the residual there"
 
 
+def odd_law(effect: Effect, element: NonlinearElement | None) -> bool | None:
+    """True for a law odd in its motion (cubic spring, symmetric clearance, friction,
+    quadratic damping: with an odd multisine they put distortion on odd lines only),
+    False for an asymmetric one (quadratic spring, one-sided or asymmetric stop: even
+    lines too), None for a missing mode."""
+    if effect is Effect.MISSING_MODE or element is None:
+        return None
+    if effect is Effect.QUADRATIC_STIFFNESS:
+        return False
+    if effect is Effect.CLEARANCE:
+        gn, gp = element.gaps
+        return math.isfinite(gn) and math.isfinite(gp) and math.isclose(gn, gp, rel_tol=1e-9)
+    return True
+
+
+def _evidence_words(analysis: DistortionAnalysis | None, effect: Effect,
+                    element: NonlinearElement | None, flatness: float | None) -> str:
+    """What the odd/even distortion of the estimation data (:mod:`fnsi.distortion`) and
+    the coefficient's flatness over frequency say about a candidate."""
+    words = ""
+    if flatness is not None and math.isfinite(flatness):
+        words += f"; its coefficient varies {flatness:.2g} % over the band"
+    odd = odd_law(effect, element)
+    if analysis is None or not analysis.odd_design or odd is None:
+        return words
+    levels = {group: max((getattr(c, group).level_db for c in analysis.channels
+                          if getattr(c, group).above_noise), default=None)
+              for group in ("odd", "even")}
+    if levels["even"] is not None and odd:
+        return (words + f"; the even non-excited lines carry distortion ({levels['even']:.0f}"
+                f" dB over the noise) that this odd law cannot make: an asymmetric law acts "
+                f"too")
+    if levels["even"] is None and levels["odd"] is not None and not odd:
+        return (words + "; but only the odd non-excited lines carry distortion (the law "
+                "looks symmetric), which this asymmetric law contradicts")
+    if levels["odd"] is not None:
+        kind = "odd" if odd else "asymmetric"
+        return words + f"; the odd/even distortion of the data agrees with an {kind} law"
+    return words
+
+
+def _distortion(study: Study) -> DistortionAnalysis | None:
+    """Distortion levels of the estimation data (None when it has one kept period)."""
+    try:
+        return analyse_distortion(study.estimation.select(outputs=study.output_names),
+                                  discard_periods=study.settings.discard_periods)
+    except ValueError:
+        return None
+
+
+def _verdict_words(test: ClaimTest) -> str:
+    """The claim rule's verdict for an explanation."""
+    if test.passed:
+        if not math.isfinite(test.z):
+            return ""
+        return (f"; significant against the period-to-period noise (z = {test.z:.3g} > "
+                f"{test.z_critical:.2g}) and worth its {test.parameters} parameter"
+                f"{'s' if test.parameters > 1 else ''} (it removes "
+                f"{100 * test.removed_fraction:.0f} % of the error above the floor)")
+    return f"; not claimed: {test.words()}"
+
+
+def _repair_words(repairs: Sequence[str]) -> str:
+    return "" if not repairs else f" (its model needed repair to run: {'; '.join(repairs)})"
+
+
 def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore | None,
-             before: float, after: float, floor: float, beats: bool,
-             concern: str | None, units: ModelUnits) -> str:
+             test: ClaimTest, concern: str | None, evaluation: Evaluation,
+             evidence: str, units: ModelUnits) -> str:
     """Sentence for one element candidate, numbers in ``units``."""
+    before, after, floor = test.before, test.after, test.floor
     if not math.isfinite(after):
         return (f"{_kind_words(proposal, element, units)}: the model with it could not be "
-                f"simulated on the validation input")
+                f"simulated on the validation input, even repaired ({evaluation.failure})")
     effect = (f"adding it lowers the validation error from {before:.3g} % to {after:.3g} %"
               if after < before < math.inf else
               f"with it the model runs, with a validation error of {after:.3g} % (the "
               f"revision itself could not be simulated)" if after < before else
               f"adding it does not lower the validation error ({before:.3g} % -> {after:.3g} %)")
     floor_words = f" (noise floor {floor:.3g} %)" if math.isfinite(floor) else ""
-    verdict = "" if beats else "; that is not beyond the noise floor"
     doubt = "" if concern is None else (f"; but {concern}, so something else acts "
                                         f"{proposal.location.phrase}")
     return (f"{_kind_words(proposal, element, units)}: {effect}{floor_words}"
-            f"{_shape_words(proposal, score, units.length)}{verdict}{doubt}")
+            f"{_repair_words(evaluation.repairs)}{_shape_words(proposal, score, units.length)}"
+            f"{evidence}{_verdict_words(test)}{doubt}")
 
 
 def _explain_mode(evaluation: Evaluation, previous: Sequence[float], order: int,
-                  before: float, after: float, floor: float, beats: bool) -> str:
+                  test: ClaimTest) -> str:
     """Sentence for the missing-mode candidate."""
+    before, after, floor = test.before, test.after, test.floor
     new = evaluation.new_mode_words(previous)
     if not math.isfinite(after):
         return (f"a linear mode the model lacks (order {order}): that model could not be "
-                f"simulated on the validation input")
+                f"simulated on the validation input, even repaired ({evaluation.failure})")
     change = ("lowers" if after < before else "does not lower")
     floor_words = f" (noise floor {floor:.3g} %)" if math.isfinite(floor) else ""
-    verdict = "" if beats else "; that is not beyond the noise floor"
     start = f"{before:.3g} %" if math.isfinite(before) else "a model that could not run"
     return (f"a linear mode the model lacks{new}: raising the order to {order} {change} the "
-            f"validation error from {start} to {after:.3g} %{floor_words}{verdict}")
+            f"validation error from {start} to {after:.3g} %{floor_words}"
+            f"{_repair_words(evaluation.repairs)}{_verdict_words(test)}")
 
 
-def _summary(candidates: Sequence[Candidate], before: float, floor: float) -> str:
-    """Verdict in words."""
-    floor_words = (f"the noise floor of {floor:.3g} %" if math.isfinite(floor)
-                   else "the noise level")
+def claim_rule(candidates: int) -> str:
+    """The claim rule in words, with its numbers (:mod:`fnsi.claim`)."""
+    return (f"a candidate is claimed when its improvement of the validation error is "
+            f"significant against the period-to-period noise (one-sided z test on the "
+            f"noise-weighted squared error per line and channel, family-wise level "
+            f"{100 * ALPHA:g} % over the {candidates} candidates: z > "
+            f"{critical_z(candidates):.2g}), when each parameter it adds lowers the RMS "
+            f"error above the noise floor by at least {100 * FALL_PER_PARAMETER:.0f} %, and "
+            f"when its coefficient is physically plausible")
+
+
+def _summary(candidates: Sequence[Candidate], before: float, floor: float,
+             left: Unexplained | None = None, refines: bool = False) -> str:
+    """Verdict in words: the claim, or the rule and the numbers that stopped the loop
+    and what remains unexplained."""
     if candidates and candidates[0].convincing:
         return f"Most likely missing: {candidates[0].explanation}."
-    doubtful = [c for c in candidates if c.beats_noise_floor]
-    if doubtful:
-        return (f"No physically plausible candidate improves the validation error "
-                f"({before:.3g} %) beyond {floor_words}. The best improvement comes from "
-                f"{doubtful[0].explanation}.")
+    ratio = before / floor if math.isfinite(floor) and floor > 0 else math.nan
+    floor_words = (f"the noise floor of {floor:.3g} %" if math.isfinite(floor)
+                   else "the noise level")
+    words = [f"No candidate passes the claim rule ({claim_rule(len(candidates))})."]
+    ran = [c for c in candidates if math.isfinite(c.validation_nrmse_percent)]
+    if ran:
+        best = min(ran, key=lambda c: c.validation_nrmse_percent)
+        why = (best.claim.words() if best.claim is not None and not best.beats_noise_floor
+               else best.concern or "")
+        words.append(f"The best model comes from {best.explanation.split(':')[0]} "
+                     f"({best.validation_nrmse_percent:.3g} %), not claimed: {why}.")
     unjudged = [c for c in candidates if not math.isfinite(c.validation_nrmse_percent)]
-    if not unjudged:
-        return (f"No candidate improves the validation error ({before:.3g} %) beyond "
-                f"{floor_words}: no missing effect is detected at the locations screened.")
-    # a candidate whose model cannot run is not evidence of absence
-    return (f"No candidate improves the validation error ({before:.3g} %) beyond "
-            f"{floor_words}, but {len(unjudged)} of the {len(candidates)} could not be run on "
-            f"the validation input and were not judged ({unjudged[0].failure}): a missing "
-            f"effect may still act there. Try a study with refine: true, which fits each "
-            f"model by its simulation error.")
+    if unjudged:
+        hint = ("" if refines else " A study that refines its revisions (refine: true) "
+                "fits each model through its simulation.")
+        words.append(f"{len(unjudged)} of the {len(candidates)} candidates could not be "
+                     f"simulated even repaired ({unjudged[0].failure}), so a missing effect "
+                     f"may act there.{hint}")
+    if not math.isfinite(before):
+        words.append("The revision itself cannot be simulated, even repaired.")
+    elif math.isfinite(ratio) and ratio > FLOOR_FACTOR:
+        where = "" if left is None or not left.groups else f": {left.words()}"
+        words.append(f"The validation error ({before:.3g} %) stays {ratio:.3g} times "
+                     f"{floor_words}, so something is still unexplained{where}.")
+    else:
+        words.append(f"The validation error ({before:.3g} %) is within {FLOOR_FACTOR:g} "
+                     f"times {floor_words}: no missing effect is detected at the locations "
+                     f"screened.")
+    return " ".join(words)
+
+
+FLOOR_FACTOR = 3.0
+"""Above this multiple of the noise floor the summary never says that nothing is missing:
+it says what remains unexplained and where."""
 
 
 def _unidentified(effect: Effect, location: Location | None,
@@ -854,52 +1009,92 @@ def _unidentified(effect: Effect, location: Location | None,
         failure=str(error))
 
 
-def _validate(study: Study, revision: int, proposal: Proposal, before: float,
-              floor: float, score: LocationScore | None) -> Candidate:
+@dataclass(frozen=True)
+class _Judge:
+    """What the claim rule compares each candidate with (:mod:`fnsi.claim`)."""
+
+    before: float
+    floor: float
+    spectra: Spectra
+    base_simulated: np.ndarray | None
+    candidates: int
+    distortion: DistortionAnalysis | None = None
+
+    def test(self, evaluation: Evaluation, parameters: int) -> ClaimTest:
+        z = math.nan
+        if self.base_simulated is not None and evaluation.simulated is not None:
+            z = improvement_z(self.spectra, self.base_simulated, evaluation.simulated)
+        return claim_test(self.before, evaluation.nrmse_percent, self.floor, parameters, z,
+                          self.candidates)
+
+
+def _validate(study: Study, revision: int, proposal: Proposal, judge: _Judge,
+              score: LocationScore | None) -> Candidate:
     """Stage 3 for one element proposal."""
     base = study.revisions[revision]
     try:
         evaluation = study.evaluate((*base.elements, proposal.element), base.identified_order,
-                                    uncertainty=False)
+                                    uncertainty=False, refine=base.refined or None)
     except ValueError as error:   # e.g. too many basis functions for the data
         return _unidentified(proposal.effect, proposal.location, proposal.element,
                              base.identified_order, proposal.reduction, error)
     after = evaluation.nrmse_percent
     element, log_ratio, flatness = _coefficient_quality(evaluation, proposal.element)
-    beats = beats_noise_floor(before, after, floor)
+    test = judge.test(evaluation, added_parameters(proposal.effect, element))
     concern = implausibility(proposal.effect, element)
     return Candidate(
         effect=proposal.effect, location=proposal.location, element=element,
         order=evaluation.order, validation_nrmse_percent=after,
-        error_reduction_factor=before / after if after > 0 else math.inf,
-        beats_noise_floor=beats, screening_reduction=proposal.reduction,
+        error_reduction_factor=judge.before / after if after > 0 else math.inf,
+        beats_noise_floor=test.passed, screening_reduction=proposal.reduction,
         log10_real_imag=log_ratio, flatness_percent=flatness,
-        explanation=_explain(proposal, element, score, before, after, floor, beats,
-                             concern, study.units),
-        failure=evaluation.failure, concern=concern,
+        explanation=_explain(proposal, element, score, test, concern, evaluation,
+                             _evidence_words(judge.distortion, proposal.effect, element,
+                                             flatness), study.units),
+        failure=evaluation.failure, concern=concern, claim=test,
+        repairs=evaluation.repairs,
     )
 
 
-def _validate_mode(study: Study, revision: int, before: float, floor: float) -> Candidate:
+def _validate_mode(study: Study, revision: int, judge: _Judge) -> Candidate:
     """Stage 3 for one more linear mode (two more states)."""
     base = study.revisions[revision]
     order = base.identified_order + 2
     try:
-        evaluation = study.evaluate(base.elements, order, uncertainty=False)
+        evaluation = study.evaluate(base.elements, order, uncertainty=False,
+                                    refine=base.refined or None)
     except ValueError as error:   # e.g. the order exceeds what the data allow
         return _unidentified(Effect.MISSING_MODE, None, None, order, None, error)
     after = evaluation.nrmse_percent
-    beats = beats_noise_floor(before, after, floor)
+    test = judge.test(evaluation, added_parameters(Effect.MISSING_MODE, None))
     return Candidate(
         effect=Effect.MISSING_MODE, location=None, element=None, order=order,
         validation_nrmse_percent=after,
-        error_reduction_factor=before / after if after > 0 else math.inf,
-        beats_noise_floor=beats, screening_reduction=None, log10_real_imag=None,
+        error_reduction_factor=judge.before / after if after > 0 else math.inf,
+        beats_noise_floor=test.passed, screening_reduction=None, log10_real_imag=None,
         flatness_percent=None,
-        explanation=_explain_mode(evaluation, base.modal["frequency_hz"], order, before,
-                                  after, floor, beats),
-        failure=evaluation.failure,
+        explanation=_explain_mode(evaluation, base.modal["frequency_hz"], order, test),
+        failure=evaluation.failure, claim=test, repairs=evaluation.repairs,
     )
+
+
+def _law(element: NonlinearElement) -> tuple:
+    """An element's law and location, whatever its parameters: (kind, exponent,
+    {dof, ref}). The diagnosis never proposes a law the revision already holds there."""
+    exponent = element.exponent if element.kind == "polynomial" else None
+    return element.kind, exponent, frozenset((element.dof, element.ref))
+
+
+def _unexplained(study: Study, index: int) -> Unexplained | None:
+    """Where the revision's validation error lies beyond the noise (None: not simulated
+    or no noise floor)."""
+    base = study.revisions[index]
+    floor = study.noise_floor_percent
+    if base.simulated is None or not math.isfinite(floor) or floor <= 0:
+        return None
+    return unexplained(study.validation_spectra, base.simulated, base.excited,
+                       base.errors.frequencies, study.settings.band, study.output_names,
+                       base.nrmse_percent / floor)
 
 
 def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | None = None,
@@ -925,8 +1120,8 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     report = progress or (lambda fraction, message: None)
     index = revision % len(study.revisions)
     base = study.revisions[index]
-    # A revision that could not be simulated (e.g. unstable) is still diagnosed: its
-    # error counts as infinite and the noise floor comes from the first candidate run.
+    # A revision that could not be simulated (even repaired) is still diagnosed: its
+    # error counts as infinite and a candidate must then reach near the floor.
     before = base.nrmse_percent
     floor = study.noise_floor_percent
     timings: dict[str, float] = {}
@@ -942,8 +1137,10 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
 
     start = time.perf_counter()
     report(0.3, "comparing kinds at the best locations")
+    held = {_law(e) for e in base.elements}
     proposals = sorted((p for s in kind_locations(scores, settings.top_locations)
-                        for p in compare_kinds(problem, s)), key=lambda p: -p.reduction)
+                        for p in compare_kinds(problem, s) if _law(p.element) not in held),
+                       key=lambda p: -p.reduction)
     timings["kinds_s"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -971,19 +1168,26 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     timings["curves_s"] = time.perf_counter() - start
 
     start = time.perf_counter()
+    distortion = _distortion(study)
+    if distortion is not None:
+        notes.append(f"nonlinear distortion of the estimation data: {distortion.verdict}")
+    judge = _Judge(before, floor, study.validation_spectra, base.simulated,
+                   len(chosen) + int(settings.include_missing_mode), distortion)
     by_location = {s.location: s for s in scores}
     candidates = []
     for count, proposal in enumerate(chosen):
         report(0.4 + 0.6 * (settings.curve_locations + count) / steps,
                f"validating {proposal.effect} {proposal.location.phrase}")
-        candidates.append(_validate(study, index, proposal, before, floor,
+        candidates.append(_validate(study, index, proposal, judge,
                                     by_location.get(proposal.location)))
     if settings.include_missing_mode:
         report(0.4 + 0.6 * (steps - 1) / steps, "validating one more linear mode")
-        candidates.append(_validate_mode(study, index, before, floor))
+        candidates.append(_validate_mode(study, index, judge))
     candidates = rank_candidates(candidates)
     timings["validation_s"] = time.perf_counter() - start
+    left = _unexplained(study, index)
     report(1.0, "diagnosis done")
     return Diagnosis(index, before, floor, tuple(candidates), scores, tuple(proposals),
-                     tuple(curves), _summary(candidates, before, floor), timings,
-                     tuple(notes), study.units)
+                     tuple(curves),
+                     _summary(candidates, before, floor, left, study.settings.refine),
+                     timings, tuple(notes), study.units, left, claim_rule(judge.candidates))

@@ -246,6 +246,35 @@ def _excited_lines(U: np.ndarray) -> np.ndarray:
     return level >= threshold
 
 
+def excited_band(measurement: Measurement, discard_periods: int = 1) -> tuple[float, float]:
+    """Lowest and highest frequency the input excites [Hz]: the default analysis band.
+
+    Parameters
+    ----------
+    measurement : Measurement
+        Periodic record; its input lines above the largest power gap of 10 dB are the
+        excited ones (:func:`_excited_lines`).
+    discard_periods : int
+        Leading transient periods left out (none when the record has only that many).
+
+    Raises
+    ------
+    ValueError
+        When the input shows no such gap (not a periodic multisine over whole periods),
+        saying to give the band.
+    """
+    drop = discard_periods if measurement.periods > discard_periods else 0
+    kept = measurement.periods - drop
+    U = _period_spectra(kept_record(measurement.u, measurement.periods, drop), kept)
+    try:
+        driven = _excited_lines(U).any(axis=0)
+    except ValueError as error:
+        raise ValueError(f"{error} Give the analysis band explicitly (--band LOW HIGH).") \
+            from None
+    frequencies = np.fft.rfftfreq(measurement.period_length, d=1.0 / measurement.fs)
+    return float(frequencies[driven].min()), float(frequencies[driven].max())
+
+
 def _checked_mask(excited: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     mask = np.asarray(excited, dtype=bool)
     if mask.ndim == 1:

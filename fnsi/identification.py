@@ -625,8 +625,8 @@ def _stabilised(model: StateSpaceModel, decomposition: SubspaceDecomposition
     change = 100 * np.linalg.norm(after - before) / np.linalg.norm(before)
     poles = ", ".join(f"{abs(np.log(complex(z))) * model.fs / (2 * np.pi):.4g} Hz "
                       f"(|z| = {abs(z):.6f})" for z in reflected if z.imag >= 0)
-    return stable, (f"the automatic order {model.order} had unstable poles, none of them a "
-                    f"kept mode: {poles}; they were reflected inside the unit circle (z -> "
+    return stable, (f"the order-{model.order} model had unstable poles: "
+                    f"{poles}; they were reflected inside the unit circle (z -> "
                     f"1/conj(z): same frequency, damping of opposite sign) and B, D fitted "
                     f"again, so the model can be simulated; its frequency response over the "
                     f"band changed by {change:.2g} % (RMS)",)
@@ -650,7 +650,8 @@ def _instability(model: StateSpaceModel, diagram: StabilisationDiagram | None
 
 
 def identify(measurement: Measurement, settings: IdentificationSettings,
-             progress: Progress | None = None) -> IdentificationResult:
+             progress: Progress | None = None, *,
+             reflect_unstable: bool = False) -> IdentificationResult:
     """Identify the underlying linear modes and the nonlinear coefficients by FNSI.
 
     Parameters
@@ -661,6 +662,10 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     progress : callable(fraction, message), optional
         Called after each stage with the completed fraction in [0, 1]; may raise to
         cancel.
+    reflect_unstable : bool
+        Reflect unstable poles inside the unit circle (B, D fitted again, with a warning)
+        at an explicit order too, as the automatic order always does: the repair of a
+        model that must be simulated (:meth:`fnsi.study.Study.evaluate`).
 
     Returns
     -------
@@ -692,7 +697,7 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     clock.done("stabilisation", 0.7, f"order {order}")
     model = decomposition.model(order)
     notes: tuple[str, ...] = ()
-    if settings.order == "auto":
+    if settings.order == "auto" or reflect_unstable:
         model, notes = _stabilised(model, decomposition)
     clock.done("model", 0.85, "B and D estimated")
     result = dataclasses.replace(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -289,23 +290,47 @@ def _synthesised_column(model: StateSpaceModel, frequencies: np.ndarray, input_c
     return (psi * scale) @ (1.0 / (z[None, :] - lam[:, None]))  # (l, N)
 
 
-def default_driving_points(input_names, output_names) -> dict[str, str]:
-    """Driving points found by name: input ``"<dof>"`` or ``"F_<dof>"`` -> output ``"<dof>"``.
+FORCE_NAME = re.compile(r"^(?:force_?|[fF]_?)(?P<point>.+)$")
+"""A force named after the point it acts at: ``F_NC2w_Z``, ``f1`` (at ``x1``), ``force3``."""
 
-    The second form is the naming of :mod:`fnsi.excitation` (a force on one DOF).
+RESPONSE_PREFIXES = ("", "x", "y", "a", "v", "d")
+"""Response names of a point ``<k>``: ``<k>`` itself or a one-letter prefix (x1, y1, ...)."""
+
+
+def default_driving_points(input_names, output_names) -> dict[str, str]:
+    """Driving points found by name, where the names leave no doubt.
+
+    An input named like an output acts there; an input ``F_<p>``, ``f<p>`` or
+    ``force<p>`` acts at the output ``<p>`` or at the one output ``x<p>``, ``y<p>``,
+    ``a<p>``, ``v<p>`` or ``d<p>`` (``f1`` at ``x1``); a single input ``u`` with a single
+    output ``y`` is a driving point. An input that matches no output, or several, gets
+    none (give ``driving_points``).
 
     Examples
     --------
     >>> default_driving_points(("F_NC2w_Z", "u1"), ("NC2w_Z", "W_Z"))
     {'F_NC2w_Z': 'NC2w_Z'}
+    >>> default_driving_points(("f1",), ("x1", "x2"))
+    {'f1': 'x1'}
+    >>> default_driving_points(("u",), ("y",))
+    {'u': 'y'}
     """
-    outputs = set(output_names)
+    outputs = list(output_names)
     points = {}
     for u in input_names:
         if u in outputs:
             points[u] = u
-        elif u.startswith("F_") and u[2:] in outputs:
-            points[u] = u[2:]
+            continue
+        match = FORCE_NAME.match(u)
+        if match is None:
+            continue
+        point = match["point"]
+        found = [f"{prefix}{point}" for prefix in RESPONSE_PREFIXES
+                 if f"{prefix}{point}" in outputs]
+        if len(found) == 1:
+            points[u] = found[0]
+    if not points and tuple(input_names) == ("u",) and tuple(outputs) == ("y",):
+        points["u"] = "y"
     return points
 
 

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fnsi.claim import Spectra, validation_spectra
 from fnsi.errors import ModelErrors, json_float, left_out_nrmse, model_errors
 from fnsi.identification import IdentificationResult, IdentificationSettings, identify
 from fnsi.measurement import Measurement
@@ -40,15 +41,21 @@ from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve
 from fnsi.units import ModelUnits
-from fnsi.validation import compare_identified
+from fnsi.validation import ERROR_BAND_FACTOR, compare_identified
 
 if TYPE_CHECKING:
     from fnsi.diagnosis import Diagnosis, DiagnosisSettings
 
 Progress = Callable[[float, str], None]
 FORMAT = "fnsi-study/1"
-"""Error spectra reach this multiple of the band's upper edge (harmonics of a
-nonlinearity land there), capped at Nyquist."""
+AUTO_REFINE_FACTOR = 3.0
+"""A revision whose FNSI model misses the validation data by more than this multiple of
+the noise floor is refined by its simulation error (:meth:`Study._refined_if_needed`)."""
+REPAIRS = (("implicit", ""),
+           ("explicit", "its nonlinear feed-through evaluated explicitly (the implicit "
+                        "output equation has no solution on the validation input)"))
+"""Simulations tried in turn, with the words recorded when one other than the first runs
+(:mod:`fnsi.simulation`, ``feedthrough``)."""
 
 
 def pooled_percent(values: np.ndarray, power: np.ndarray) -> float:
@@ -119,6 +126,9 @@ class Evaluation:
     nrmse_std_percent : float or None
         Standard deviation of ``nrmse_percent`` from the noise of the validation record
         [%] (:func:`pooled_std_percent`); None with one kept period or no simulation.
+    repairs : tuple of str
+        What was changed so that the identified model could be simulated (reflected
+        unstable poles, an explicit output equation), in words.
     """
 
     elements: tuple[NonlinearElement, ...]
@@ -129,6 +139,7 @@ class Evaluation:
     nrmse_percent: float = math.inf
     failure: str | None = None
     nrmse_std_percent: float | None = None
+    repairs: tuple[str, ...] = ()
 
     @property
     def order(self) -> int:
@@ -217,6 +228,8 @@ class Revision:
         Standard deviation of ``nrmse_percent`` from the validation record's noise [%]
         (:func:`pooled_std_percent`); None with one kept period, no simulation, or for
         revisions saved before.
+    repairs : tuple of str
+        What was changed so that the model could be simulated (:meth:`Study.evaluate`).
     """
 
     number: int
@@ -236,6 +249,13 @@ class Revision:
     refinement: dict | None = None
     separability: tuple[dict, ...] = ()
     nrmse_std_percent: float | None = None
+    repairs: tuple[str, ...] = ()
+
+    @property
+    def refined(self) -> bool:
+        """The model was refined by its simulation error (by the study's settings or
+        because the study decided so)."""
+        return bool(self.refinement) and self.refinement.get("iterations", 0) > 0
 
     def to_json(self, *, spectra: bool = False) -> dict:
         """JSON-ready revision: model summary and validation errors (with the error per
@@ -268,6 +288,7 @@ class Revision:
             "failure": self.failure,
             "refinement": self.refinement,
             "separability": list(self.separability),
+            "repairs": list(self.repairs),
         }
 
 
@@ -284,6 +305,26 @@ def _modal_json(result: IdentificationResult) -> dict:
             "damping_ratio": modal.damping_ratios.tolist(),
             "frequency_hz_std": u.frequencies.tolist() if known else None,
             "damping_ratio_std": u.damping_ratios.tolist() if known else None}
+
+
+def law_name(element: NonlinearElement) -> str:
+    """Label of an element by its law and location: ``"cubic spring x3"``,
+    ``"quadratic spring x2-x3"``, ``"one-sided stop x4"``, ``"Coulomb friction x1"``
+    (the element's own ``name`` says only its kind, the same for x^2 and x^3)."""
+    kind = element.kind.value
+    if kind == "polynomial":
+        law = {2.0: "quadratic spring", 3.0: "cubic spring"}.get(
+            float(element.exponent), f"x^{element.exponent:g} spring")
+    elif kind == "clearance":
+        gn, gp = element.gaps
+        law = ("one-sided stop" if math.isinf(gn) or math.isinf(gp) else
+               "clearance" if math.isclose(gn, gp) else "asymmetric clearance")
+    else:
+        law = {"coulomb_friction": "Coulomb friction", "quadratic_damping":
+               "quadratic damper", "spline": "spline spring",
+               "piecewise_linear": "piecewise-linear spring"}.get(kind, kind)
+    where = element.dof if element.ref is None else f"{element.dof}-{element.ref}"
+    return f"{law} {where}"
 
 
 def _check_pair(estimation: Measurement, validation: Measurement) -> None:
@@ -367,6 +408,17 @@ class Study:
         zero = np.zeros_like(measured[:, : measured.shape[1] // kept])
         return model_errors(measured, zero, self.validation.fs, periods=kept).noise_floor_percent
 
+    @functools.cached_property
+    def validation_spectra(self) -> Spectra:
+        """Period-averaged validation spectra and their noise on the lines of the error
+        spectra (:func:`fnsi.claim.validation_spectra`; the claim rule's data)."""
+        measured, kept = self._validation_kept
+        n = measured.shape[1] // kept
+        frequencies = np.fft.rfftfreq(n, d=1.0 / self.validation.fs)
+        high = min(self.validation.fs / 2, ERROR_BAND_FACTOR * self.settings.band[1])
+        lines = np.flatnonzero((frequencies > 0.0) & (frequencies <= high))
+        return validation_spectra(measured, kept, lines)
+
     @property
     def noise_floor_percent(self) -> float:
         """Overall noise floor of the validation data [%]: the NRMSE a perfect model
@@ -398,28 +450,43 @@ class Study:
 
     # -- revisions -------------------------------------------------------------------------
     def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
-                 progress: Progress | None = None, *, uncertainty: bool = True) -> Evaluation:
+                 progress: Progress | None = None, *, uncertainty: bool = True,
+                 refine: bool | None = None) -> Evaluation:
         """Identify a model on the estimation data and run it on the validation data.
 
-        The study is not changed. A model that cannot be simulated (unstable, diverging)
-        is returned with ``failure`` set instead of raising. ``uncertainty`` False skips
-        the standard deviations of its modes and coefficients (trial models of the
-        diagnosis, of which only the errors count).
+        The study is not changed. A model that cannot be simulated is repaired before it
+        is given up (:data:`REPAIRS`, each named in ``Evaluation.repairs``): unstable
+        poles are reflected inside the unit circle (same frequency, B and D fitted
+        again), and an output equation that folds is solved explicitly. A model still not
+        simulable is returned with ``failure`` set instead of raising. ``uncertainty``
+        False skips the standard deviations of its modes and coefficients (trial models
+        of the diagnosis, of which only the errors count); ``refine`` overrides the
+        study's ``settings.refine``.
         """
         elements = tuple(elements)
         settings = replace(self.settings, elements=elements, order=order,
-                           uncertainty=uncertainty and self.settings.uncertainty)
+                           uncertainty=uncertainty and self.settings.uncertainty,
+                           refine=self.settings.refine if refine is None else refine)
         report = progress or (lambda fraction, message: None)
-        result = identify(self.estimation, settings,
-                          lambda f, m: report(0.9 * f, m))
+        # reflection changes nothing in a stable model, so it costs nothing to ask for
+        result = identify(self.estimation, settings, lambda f, m: report(0.9 * f, m),
+                          reflect_unstable=True)
+        repairs = (("unstable poles reflected inside the unit circle, B and D fitted "
+                    "again",) if any("were reflected inside" in w for w in result.warnings)
+                   else ())
         report(0.9, "simulating the validation input")
-        try:
-            comparison = compare_identified(result, self.validation)
-        except ValueError as error:
-            # the identification's warnings name the stable orders of an unstable model,
-            # or the poles the automatic order reflected
-            return Evaluation(elements, result, None, None, None,
-                              failure="; ".join((str(error), *result.warnings)))
+        failures = []
+        for feedthrough, words in REPAIRS:
+            try:
+                comparison = compare_identified(result, self.validation, feedthrough)
+            except ValueError as error:
+                failures.append(str(error))
+                continue
+            repairs += (words,) if words else ()
+            break
+        else:
+            return Evaluation(elements, result, None, None, None, failure="; ".join(
+                (*failures, *result.warnings)), repairs=repairs)
         errors = comparison.errors
         validation = self.validation.select(inputs=result.model.input_names,
                                             outputs=result.model.output_names)
@@ -431,7 +498,7 @@ class Study:
         return Evaluation(elements, result, comparison.simulated, errors,
                           self._excited_lines(validation, errors.frequencies),
                           pooled_percent(errors.nrmse_percent, self.channel_power),
-                          nrmse_std_percent=spread)
+                          nrmse_std_percent=spread, repairs=repairs)
 
     def _excited_lines(self, validation: Measurement, frequencies: np.ndarray) -> np.ndarray:
         """Lines where the validation input has power (the others show distortion)."""
@@ -441,9 +508,33 @@ class Study:
         lines = np.rint(frequencies * validation.period_length / validation.fs).astype(int)
         return power[lines] > 1e-6 * power.max()
 
+    def _refined_if_needed(self, evaluation: Evaluation, progress: Progress | None
+                           ) -> Evaluation:
+        """The revision refined by its simulation error when the loop needs it.
+
+        The study decides, not the user: when FNSI's model with nonlinear elements misses
+        the validation data by more than :data:`AUTO_REFINE_FACTOR` times the noise floor
+        (bases driven outside the band, noisy bases), the model is refined
+        (:mod:`fnsi.refinement`) and kept if it validates better; the diagnosis of such a
+        revision refines its candidates too (:attr:`Revision.refined`). A linear revision
+        stays FNSI's: the diagnosis screens with its poles.
+        """
+        floor = self.noise_floor_percent
+        error = evaluation.nrmse_percent
+        if (self.settings.refine or not evaluation.elements or not math.isfinite(floor)
+                or not math.isfinite(error) or error <= AUTO_REFINE_FACTOR * floor):
+            return evaluation
+        refined = self.evaluate(evaluation.elements, evaluation.order, progress, refine=True)
+        if not refined.nrmse_percent < error:
+            return evaluation
+        return replace(refined, repairs=(*refined.repairs, (
+            f"refined by its simulation error: FNSI's model missed the validation data by "
+            f"{error / floor:.3g} times the noise floor ({error:.3g} % -> "
+            f"{refined.nrmse_percent:.3g} %)")))
+
     def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
                 progress: Progress | None) -> Revision:
-        evaluation = self.evaluate(elements, order, progress)
+        evaluation = self._refined_if_needed(self.evaluate(elements, order, progress), progress)
         result = evaluation.identification
         revision = Revision(
             number=len(self.revisions), note=note, order=order, elements=elements,
@@ -455,6 +546,7 @@ class Study:
             refinement=None if result.refinement is None else result.refinement.to_json(),
             separability=tuple(s.to_json() for s in result.separability),
             nrmse_std_percent=evaluation.nrmse_std_percent,
+            repairs=evaluation.repairs,
         )
         self.revisions.append(revision)
         return revision
@@ -493,8 +585,8 @@ class Study:
                                                     parent_number=parent.number)
         new_order = parent.identified_order if order is None else order
         if note is None:
-            words = [f"add {e.name}" for e in added]
-            words += [f"remove {parent.elements[k].name}" for k in removed]
+            words = [f"add {law_name(e)}" for e in added]
+            words += [f"remove {law_name(parent.elements[k])}" for k in removed]
             if new_order != parent.identified_order:
                 words.append(f"order {new_order}")
             note = ", ".join(words) or "re-identified"
@@ -531,19 +623,19 @@ class Study:
         for r in self.revisions:
             rows.append({
                 "number": r.number, "note": r.note, "order": r.identified_order,
-                "elements": [e.name for e in r.elements],
+                "elements": [law_name(e) for e in r.elements],
                 "nrmse_percent": json_float(r.nrmse_percent),
                 "nrmse_std_percent": r.nrmse_std_percent,
                 "nrmse_db": json_float(20 * math.log10(r.nrmse_percent / 100))
                 if math.isfinite(r.nrmse_percent) and r.nrmse_percent > 0 else None,
                 "noise_floor_percent": json_float(r.noise_floor_percent),
-                "failure": r.failure,
+                "failure": r.failure, "repairs": list(r.repairs),
             })
         return rows
 
     def history_table(self) -> str:
         """The error history as a plain-text table (for the CLI); a revision whose model
-        could not be simulated says why below its row."""
+        could not be simulated says why below its row, one that was repaired how."""
         lines = [f"{'rev':>3}  {'order':>5}  {'NRMSE %':>9}  {'floor %':>8}  change"]
         for row in self.history():
             e = row["nrmse_percent"]
@@ -553,6 +645,7 @@ class Study:
                          f"{'-' if f is None else f'{f:8.3g}':>8}  {row['note']}")
             if row["failure"]:
                 lines.append(f"{'':>3}  failed: {row['failure']}")
+            lines += [f"{'':>3}  repaired: {words}" for words in row["repairs"]]
         return "\n".join(lines)
 
     def to_json(self, *, spectra: bool = False) -> dict:
@@ -736,4 +829,5 @@ def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study)
         failure=item["failure"], refinement=item.get("refinement"),
         separability=tuple(item.get("separability", ())),
         nrmse_std_percent=item.get("nrmse_std_percent"),
+        repairs=tuple(item.get("repairs", ())),
     )

@@ -236,10 +236,11 @@ def plot_candidates(diagnosis: Diagnosis) -> bytes:
     figure = new_figure(7.0, 1.2 + 0.55 * len(candidates))
     ax = figure.subplots()
     y = np.arange(len(candidates))[::-1]
-    groups = {("tab:green", "beats the noise floor"): [c.convincing for c in candidates],
-              ("tab:orange", "beats it, implausible coefficient"):
+    groups = {("tab:green", "claimed"): [c.convincing for c in candidates],
+              ("tab:orange", "passes the rule, implausible coefficient"):
                   [c.beats_noise_floor and not c.convincing for c in candidates],
-              ("0.6", "within the noise"): [not c.beats_noise_floor for c in candidates]}
+              ("0.6", "not claimed (rule in the summary)"):
+                  [not c.beats_noise_floor for c in candidates]}
     for (colour, verdict), members in groups.items():
         if any(members):
             ax.barh(y[members], np.asarray(values)[members], color=colour, label=verdict)

@@ -48,7 +48,8 @@ class Comparison:
 
 
 def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
-            band_high: float, oversampling: int | None = None) -> Comparison:
+            band_high: float, oversampling: int | None = None,
+            feedthrough: str = "implicit") -> Comparison:
     """Simulate ``model`` with the input of ``measurement`` and compare the outputs.
 
     Parameters
@@ -66,6 +67,9 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
         Internal samples per sample of the simulation; default the model's
         :func:`fnsi.oversampling.oversampling_factor`. Give 1 for a refined model, which
         was fitted through the simulation at fs.
+    feedthrough : {"implicit", "explicit"}
+        Treatment of the nonlinear feed-through (:mod:`fnsi.simulation`): ``"explicit"``
+        runs a model whose implicit output equation folds.
 
     Returns
     -------
@@ -80,7 +84,7 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     data = measurement.select(inputs=model.input_names, outputs=model.output_names)
     measured = kept_record(data.y, data.periods, discard_periods)
     u = data.u[:, -data.period_length:]
-    periods = simulate_oversampled(model, u, band_high, oversampling)
+    periods = simulate_oversampled(model, u, band_high, oversampling, feedthrough)
     simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
     high = min(data.fs / 2, ERROR_BAND_FACTOR * band_high)
     errors = model_errors(measured, simulated, data.fs, periods=data.periods - discard_periods,
@@ -88,7 +92,8 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     return Comparison(simulated, errors)
 
 
-def compare_identified(result: IdentificationResult, measurement: Measurement) -> Comparison:
+def compare_identified(result: IdentificationResult, measurement: Measurement,
+                       feedthrough: str = "implicit") -> Comparison:
     """:func:`compare` for an identification: its transient periods and band, and a
     refined model simulated at fs, the simulation refinement fitted it through
     (:mod:`fnsi.oversampling`).
@@ -99,6 +104,8 @@ def compare_identified(result: IdentificationResult, measurement: Measurement) -
         The identification whose model is compared.
     measurement : Measurement
         Estimation or validation data.
+    feedthrough : {"implicit", "explicit"}
+        As in :func:`compare`.
 
     Returns
     -------
@@ -106,4 +113,5 @@ def compare_identified(result: IdentificationResult, measurement: Measurement) -
     """
     refined = result.refinement is not None and result.refinement.iterations > 0
     return compare(result.model, measurement, discard_periods=result.settings.discard_periods,
-                   band_high=result.settings.band[1], oversampling=1 if refined else None)
+                   band_high=result.settings.band[1], oversampling=1 if refined else None,
+                   feedthrough=feedthrough)

@@ -121,4 +121,5 @@ def diagnose_study_job(context: JobContext) -> dict[str, Any]:
         context.store.write_artefact(job.id, name, content)
     return {"study_id": request["study_id"],
             **{k: doc[k] for k in ("revision", "nrmse_before_percent", "noise_floor_percent",
-                                   "found", "summary", "candidates", "notes", "timings")}}
+                                   "found", "summary", "candidates", "notes", "timings",
+                                   "unexplained", "claim_rule")}}

@@ -183,6 +183,26 @@ class StudyJobResult(StoredDocument):
     history: list[HistoryRow] = Field(description="Error history, one row per revision.")
 
 
+class UnexplainedGroup(StoredDocument):
+    """A part of the excess validation error: one channel over one group of lines."""
+
+    channel: str = Field(description="Output channel.", examples=["x3"])
+    lines: str = Field(description="Lines: excited or not, below, in or above the band.",
+                       examples=["excited lines in the band"])
+    share: float = Field(description="Share of the error above the floor [-].",
+                         examples=[0.62])
+    over_noise_db: float | None = Field(description="Its level over the noise [dB].",
+                                        examples=[18.0])
+
+
+class UnexplainedError(StoredDocument):
+    """Where a revision's validation error lies beyond the noise."""
+
+    ratio_to_floor: float | None = Field(description="Validation error over the noise floor "
+                                         "[-].", examples=[12.5])
+    groups: list[UnexplainedGroup] = Field(description="Largest parts first.")
+
+
 class DiagnosisJobResult(StoredDocument):
     """Result of a study_diagnosis job: ranked candidate missing effects."""
 
@@ -192,11 +212,17 @@ class DiagnosisJobResult(StoredDocument):
     nrmse_before_percent: float | None = Field(description="Validation NRMSE of that "
                                                "revision [%].")
     noise_floor_percent: float | None = Field(description="Noise floor [%].")
-    found: bool = Field(description="The best candidate beats the noise floor.")
+    found: bool = Field(description="The best candidate passes the claim rule with a "
+                        "physically plausible coefficient.")
     summary: str = Field(description="The verdict in words.")
     candidates: list[Candidate] = Field(description="Candidates, best first.")
     notes: list[str] = Field(description="Remarks on the diagnosis.")
     timings: dict[str, float] = Field(description="Wall time per stage [s].")
+    unexplained: UnexplainedError | None = Field(
+        None, description="Where the revision's validation error lies beyond the noise "
+        "(fnsi.claim.unexplained); null when within 3 times the floor.")
+    claim_rule: str | None = Field(None, description="The rule a candidate must pass to "
+                                   "be claimed, with its numbers.")
 
 
 class LineGroupLevel(StoredDocument):

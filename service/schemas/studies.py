@@ -146,8 +146,9 @@ class Candidate(BaseModel):
         "model could not be simulated.", examples=[0.49])
     error_reduction_factor: float | None = Field(
         description="Validation NRMSE before / after [-].", examples=[51.0])
-    beats_noise_floor: bool = Field(description="The error it removes exceeds the noise "
-                                    "floor (not a fit to noise).")
+    beats_noise_floor: bool = Field(description="It passes the claim rule: its improvement "
+                                    "is significant against the period-to-period noise "
+                                    "and worth the parameters it adds (see claim).")
     screening_reduction: float | None = Field(
         None, description="Fraction of the fixed-pole residual it explains [-].")
     log10_real_imag: float | None = Field(
@@ -164,6 +165,29 @@ class Candidate(BaseModel):
         "effect (a stop with negative contact stiffness, friction or damping that feeds "
         "energy in); such candidates rank after the convincing ones. Null when plausible.",
         examples=[None])
+    claim: ClaimTestSummary | None = Field(
+        None, description="The claim rule's test (fnsi.claim); null for candidates not "
+        "validated.")
+    repairs: list[str] = Field(default_factory=list, description=(
+        "What was changed so that its model could be simulated."))
+
+
+class ClaimTestSummary(BaseModel):
+    """The claim rule applied to one candidate (fnsi.claim): a one-sided z test of its
+    improvement against the period-to-period noise, and a penalty per added parameter."""
+
+    z: float | None = Field(description="Standardised improvement of the validation error "
+                            "against the noise [-]; null when not finite.", examples=[412.0])
+    z_critical: float | None = Field(description="Threshold of the test (family-wise level, "
+                                     "Bonferroni over the candidates) [-].", examples=[3.5])
+    significant: bool = Field(description="z above z_critical.")
+    parameters: int = Field(description="Parameters the candidate adds.", examples=[1])
+    removed_fraction: float | None = Field(description="Fraction of the error above the "
+                                           "noise floor it removes [-].", examples=[0.93])
+    required_fraction: float = Field(description="Fraction its parameters must remove [-].",
+                                     examples=[0.1])
+    worth_parameters: bool = Field(description="removed_fraction reaches required_fraction.")
+    rule: str = Field(description="Why it is or is not claimed, in words.")
 
 
 class StudyJob(BaseModel):
@@ -240,7 +264,11 @@ class RevisionRecord(BaseModel):
         "does not refine.")
     separability: list[ElementSeparability] | None = Field(
         None, description="Per element: whether the data tell its force apart from the "
-        "others' (see the identification result's separability).")
+        "others' (unexplained, partners, confounded, concern; see the identification "
+        "result's separability).")
+    repairs: list[str] = Field(default_factory=list, description=(
+        "What was changed so that the model could be simulated (reflected unstable poles, "
+        "an explicit output equation), in words."))
 
 
 class Revision(RevisionRecord):
@@ -265,6 +293,9 @@ class HistoryRow(BaseModel):
     nrmse_db: float | None = Field(description="Validation NRMSE [dB].", examples=[-46.2])
     noise_floor_percent: float | None = Field(description="Noise floor [%].", examples=[0.36])
     failure: str | None = Field(None, description="Why the model could not be simulated.")
+    repairs: list[str] = Field(default_factory=list, description=(
+        "What was changed so that the model could be simulated (reflected unstable poles, "
+        "an explicit output equation), in words."))
 
 
 class StudyDiagnosis(BaseModel):
@@ -273,7 +304,8 @@ class StudyDiagnosis(BaseModel):
     job_id: str = Field(description="Diagnosis job.")
     state: JobState = Field(description="Job state.")
     revision: int | None = Field(None, description="Diagnosed revision (once known).")
-    found: bool | None = Field(None, description="The best candidate beats the noise floor.")
+    found: bool | None = Field(None, description="The best candidate passes the claim rule "
+                               "with a physically plausible coefficient.")
     summary: str | None = Field(None, description="The verdict in words.")
     candidates: list[Candidate] = Field(default_factory=list,
                                         description="Candidates, best first.")

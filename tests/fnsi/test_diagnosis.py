@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from fnsi.acquisition import acquire
+from fnsi.claim import claim_test
 from fnsi.diagnosis import (
     MAX_KIND_LOCATIONS,
     Candidate,
@@ -34,7 +35,7 @@ from fnsi.diagnosis import (
     Location,
     LocationScore,
     _summary,
-    beats_noise_floor,
+    added_parameters,
     candidate_locations,
     implausibility,
     kind_locations,
@@ -176,7 +177,8 @@ def test_linear_structure_raises_no_false_alarm():
     diagnosis = study.diagnose(settings=EFFORT)
     assert not diagnosis.found
     assert not any(c.beats_noise_floor for c in diagnosis.candidates)
-    assert diagnosis.summary.startswith("No candidate improves the validation error")
+    assert diagnosis.summary.startswith("No candidate passes the claim rule")
+    assert "no missing effect is detected" in diagnosis.summary
     # A linear model of a linear structure already sits on the floor (within 20 %).
     assert diagnosis.nrmse_before_percent < 1.2 * diagnosis.noise_floor_percent
 
@@ -333,12 +335,24 @@ def test_kinds_are_compared_at_every_connection_among_near_tied_dofs():
     assert kind_locations([_scored("w", None, 0.0)], top=3)[0].location == Location("w")
 
 
-def test_noise_floor_criterion():
-    assert beats_noise_floor(10.0, 1.0, 0.5)
-    assert not beats_noise_floor(0.6, 0.5, 0.5)     # removes less than the floor's energy
-    assert not beats_noise_floor(10.0, 9.5, 0.5)    # less than 10 % better
-    assert not beats_noise_floor(10.0, math.inf, 0.5)
-    assert beats_noise_floor(10.0, 7.0, math.nan)   # no floor: 20 % better is enough
+def test_claim_rule():
+    # significant (z above the critical value) and worth its one parameter
+    assert claim_test(10.0, 1.0, 0.5, 1, 50.0, 5).passed
+    # an improvement the noise could make is not claimed, however large it looks
+    noise = claim_test(10.0, 5.0, 0.5, 1, 2.0, 5)
+    assert not noise.passed and "not significant" in noise.words()
+    # significant but too small for what it adds: each parameter must lower the RMS
+    # excess by 10 % (three parameters: remove 47 % of the squared excess; this one 36 %)
+    small = claim_test(10.0, 8.0, 0.5, 3, 40.0, 5)
+    assert small.significant and not small.passed
+    assert "less than the 47 % its 3 parameters must buy" in small.words()
+    assert claim_test(10.0, 8.0, 0.5, 1, 40.0, 5).passed      # one parameter: 19 %
+    # worse or not simulated: never "within the noise"
+    assert "makes the model worse" in claim_test(10.0, 12.0, 0.5, 1, -9.0, 5).words()
+    assert "could not be simulated" in claim_test(10.0, math.inf, 0.5, 1, math.nan, 5).words()
+    # no noise floor (one period): the error must fall by 20 %
+    assert claim_test(10.0, 7.0, math.nan, 1, math.nan, 5).passed
+    assert not claim_test(10.0, 8.5, math.nan, 1, math.nan, 5).passed
 
 
 @pytest.mark.parametrize(("kind", "effect", "extra", "words"), [
@@ -357,6 +371,20 @@ def test_energy_and_contact_signs_are_judged(kind, effect, extra, words):
     assert null is not None and "is zero (0)" in null
 
 
+def test_parameters_counted_for_the_claim_penalty():
+    def clearance(**gaps):
+        return NonlinearElement("clearance", "x1", **gaps)
+
+    assert added_parameters(Effect.CLEARANCE, clearance(gap=1e-3)) == 2
+    assert added_parameters(Effect.CLEARANCE, clearance(gap_positive=1e-3,
+                                                         side="positive")) == 2
+    assert added_parameters(Effect.CLEARANCE, clearance(gap_negative=2e-3,
+                                                         gap_positive=1e-3)) == 3
+    cubic = NonlinearElement("polynomial", "x1", exponent=3.0)
+    assert added_parameters(Effect.CUBIC_STIFFNESS, cubic) == 1
+    assert added_parameters(Effect.MISSING_MODE, None) == 3
+
+
 def test_softening_and_asymmetry_are_plausible_either_sign():
     cubic = NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(-2e8,))
     quadratic = NonlinearElement("polynomial", "x3", exponent=2.0, coefficients=(-1e5,))
@@ -369,11 +397,12 @@ def test_softening_and_asymmetry_are_plausible_either_sign():
 
 def _candidate(effect: Effect, nrmse: float, concern: str | None = None) -> Candidate:
     location = None if effect is Effect.MISSING_MODE else Location("x3")
+    test = claim_test(10.0, nrmse, 0.3, 1, 100.0 if nrmse < 10.0 else -1.0, 3)
     return Candidate(effect=effect, location=location, element=None, order=10,
                      validation_nrmse_percent=nrmse, error_reduction_factor=10.0 / nrmse,
-                     beats_noise_floor=beats_noise_floor(10.0, nrmse, 0.3),
-                     screening_reduction=None, log10_real_imag=None, flatness_percent=None,
-                     explanation=effect.value, concern=concern)
+                     beats_noise_floor=test.passed, screening_reduction=None,
+                     log10_real_imag=None, flatness_percent=None,
+                     explanation=effect.value, concern=concern, claim=test)
 
 
 def test_implausible_candidates_rank_after_plausible_ones_and_are_not_a_finding():
@@ -394,8 +423,22 @@ def test_candidates_that_cannot_run_are_not_evidence_of_absence():
     mode = _candidate(Effect.MISSING_MODE, 9.8)
     diverged = dataclasses.replace(_candidate(Effect.CLEARANCE, math.inf),
                                    failure="the simulation diverged")
-    assert _summary([mode], 10.0, 0.3).endswith("no missing effect is detected at the "
-                                                "locations screened.")
+    at_floor = _summary([mode], 0.6, 0.3)
+    assert at_floor.endswith("no missing effect is detected at the locations screened.")
     verdict = _summary([mode, diverged], 10.0, 0.3)
-    assert "1 of the 2 could not be run" in verdict and "the simulation diverged" in verdict
-    assert "refine: true" in verdict and "no missing effect is detected" not in verdict
+    assert "1 of the 2 candidates could not be simulated" in verdict
+    assert "the simulation diverged" in verdict and "refine: true" in verdict
+    assert "no missing effect is detected" not in verdict
+    assert "refine: true" not in _summary([mode, diverged], 10.0, 0.3, refines=True)
+
+
+def test_nothing_claimed_above_the_floor_says_what_is_left_and_the_rule():
+    """Never "nothing found" while the error is well above the floor: the summary gives
+    the rule, the numbers that stopped the best candidate and what remains."""
+    worse = _candidate(Effect.CUBIC_STIFFNESS, 12.0)
+    verdict = _summary([worse], 10.0, 0.3)
+    assert "no missing effect is detected" not in verdict
+    assert "z >" in verdict and "error above the noise floor by at least 10 %" in verdict
+    assert "it makes the model worse (10 % -> 12 %)" in verdict
+    assert "stays 33.3 times the noise floor" in verdict
+    assert "within the noise" not in verdict

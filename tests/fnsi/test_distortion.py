@@ -142,3 +142,16 @@ def test_the_command_line_prints_the_verdict_and_writes_json_and_figure(chain, l
     assert summary["odd_design"] and summary["channels"][0]["odd"]["above_noise"]
     png = (tmp_path / "out" / "distortion.png").read_bytes()
     assert png.startswith(b"\x89PNG") and len(png) > 20_000  # four drawn panels, not blank
+
+
+def test_the_default_band_is_what_the_input_excites():
+    """Periodic noise on 3-47 Hz (not the 5-50 Hz a fixed default would cut): the band
+    is found within one line (0.4 Hz here) from the input alone."""
+    from fnsi.distortion import excited_band
+    from fnsi.excitation import periodic_noise
+
+    fs, n = 200.0, 500
+    u = np.tile(periodic_noise(n, fs, (3.0, 47.0), 1.0, seed=3)[0], 3)[:, None]
+    data = Measurement.from_arrays(u, u, fs, periods=3)
+    low, high = excited_band(data)
+    assert low == pytest.approx(3.0, abs=fs / n) and high == pytest.approx(47.0, abs=fs / n)

@@ -14,7 +14,7 @@ import pytest
 
 from fnsi.diagnosis import DiagnosisSettings
 from fnsi.nonlinear import NonlinearElement
-from fnsi.study import Study
+from fnsi.study import Study, law_name
 from fnsi.study_plots import diagnosis_figures, residual_map, study_figures
 from tests.fnsi.test_diagnosis import SETTINGS, chain, measure
 
@@ -71,10 +71,11 @@ def test_overall_errors_weight_channels_by_their_power(study):
 def test_history_table_and_chart(study):
     rows = study.history()
     assert [r["number"] for r in rows] == [0, 1]
-    assert rows[1]["note"] == "add polynomial x3"
+    assert rows[1]["note"] == "add cubic spring x3"      # labelled by its law
+    assert rows[1]["elements"] == ["cubic spring x3"]
     assert rows[1]["nrmse_percent"] < rows[0]["nrmse_percent"] / 10
     table = study.history_table()
-    assert "add polynomial x3" in table and len(table.splitlines()) == 3
+    assert "add cubic spring x3" in table and len(table.splitlines()) == 3
     figures = study_figures(study, 0)
     assert set(figures) == {"history.png", "revision-0-comparison.png",
                             "revision-0-residual-spectra.png", "revision-0-residual-map.png"}
@@ -95,7 +96,7 @@ def test_remove_and_order_change_make_new_revisions(study, data):
     copy = Study.create(*data, SETTINGS)
     copy.add_revision(add=[CUBIC.to_json()])
     back = copy.add_revision(remove=[0])
-    assert back.elements == () and back.note == "remove polynomial x3"
+    assert back.elements == () and back.note == "remove cubic spring x3"
     # Same model as revision 0: the identification is deterministic.
     assert back.nrmse_percent == pytest.approx(copy.revisions[0].nrmse_percent, rel=1e-9)
     bigger = copy.add_revision(order=12, base=1)
@@ -138,9 +139,23 @@ def test_loaded_study_can_be_diagnosed_and_extended(study, tmp_path):
     diagnosis = loaded.diagnose(settings=DiagnosisSettings(validated_candidates=1,
                                                            curve_locations=0))
     assert not diagnosis.found       # revision 1 already holds the hidden effect
+    # never proposed again: the law it holds at x3, whatever its parameters
+    assert not any(p.location.dof == "x3" and p.location.ref is None
+                   and p.element.kind == "polynomial" and p.element.exponent == 3.0
+                   for p in diagnosis.proposals)
+    # the revision is at the floor: the summary may say that nothing is missing
+    assert diagnosis.nrmse_before_percent < 3 * diagnosis.noise_floor_percent
+    assert "no missing effect is detected" in diagnosis.summary
     figures = diagnosis_figures(diagnosis)
     assert {"screening.png", "candidates.png"} <= set(figures)
     assert all(png.startswith(PNG) for png in figures.values())
+
+
+def test_elements_are_labelled_by_their_law():
+    quadratic = NonlinearElement("polynomial", "x2", "x3", exponent=2.0, signed=False)
+    stop = NonlinearElement("clearance", "x4", gap_positive=1e-3, side="positive")
+    assert [law_name(e) for e in (CUBIC, quadratic, stop)] == [
+        "cubic spring x3", "quadratic spring x2-x3", "one-sided stop x4"]
 
 
 def test_json_is_strict(study):
@@ -165,7 +180,7 @@ def test_bad_inputs_say_what_to_change(data, tmp_path):
     assert math.isfinite(Study(estimation, validation, SETTINGS).noise_floor_percent)
 
 
-def test_history_table_says_why_a_revision_failed():
+def test_an_unstable_revision_is_repaired_and_the_table_says_how(tmp_path):
     from fnsi.identification import IdentificationSettings
     from fnsi.smallsat import simulate_preset
 
@@ -175,12 +190,17 @@ def test_history_table_says_why_a_revision_failed():
         {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5})
     settings = IdentificationSettings(outputs=("NC2w_Z", "NC2b_Z", "W_Z"), band=(5.0, 50.0),
                                       block_rows=20, max_order=20, order=14, elements=(stop,))
-    unstable = Study.create(record, record, settings)
-    failure = unstable.revisions[0].failure
-    assert "unstable" in failure and "stable: [" in failure   # names the stable orders
-    table = unstable.history_table().splitlines()
-    assert "failed" in table[1] and table[2].strip() == f"failed: {failure}"
-    assert unstable.history()[0]["failure"] == failure
+    study = Study.create(record, record, settings)
+    revision = study.revisions[0]
+    # repaired, not dropped: the pole reflected inside the unit circle, the model runs
+    assert revision.failure is None and math.isfinite(revision.nrmse_percent)
+    assert np.max(np.abs(np.linalg.eigvals(revision.model.A))) < 1.0
+    assert revision.repairs and "reflected inside the unit circle" in revision.repairs[0]
+    table = study.history_table().splitlines()
+    assert "failed" not in table[1] and table[2].strip() == f"repaired: {revision.repairs[0]}"
+    assert study.history()[0]["repairs"] == list(revision.repairs)
+    reloaded = Study.load(study.save(tmp_path / "repaired"))
+    assert reloaded.revisions[0].repairs == revision.repairs
 
 
 def test_revisions_give_their_errors_modes_and_coefficients_with_standard_deviations(study):
