@@ -93,12 +93,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
+    from fnsi.summary import summarize
+
     m = _read(args.dataset, args)
-    print(json.dumps({"inputs": list(m.input_names), "outputs": list(m.output_names),
-                      "input_units": list(m.input_units), "output_units": list(m.output_units),
-                      "fs": m.fs, "quantity": m.quantity, "realisations": m.n_realisations,
-                      "samples": m.n_samples, "periods": m.periods,
-                      "period_length": m.period_length}, indent=2))
+    # the service's dataset summary: every channel with its unit, RMS and SNR [dB]
+    summary = summarize(m, "declared")
+    del summary["periods_source"]     # the reader does not say whether it detected them
+    print(json.dumps(summary | {"input_units": list(m.input_units),
+                                "output_units": list(m.output_units)}, indent=2))
     return 0
 
 
@@ -188,17 +190,25 @@ def build_parser() -> argparse.ArgumentParser:
     simulate = commands.add_parser(
         "simulate", help="simulate a SmallSat preset and write a canonical NPZ dataset"
     )
-    simulate.add_argument("preset", choices=["single", "multi"])
+    simulate.add_argument("preset", choices=["single", "multi"],
+                          help="single: one clearance NC2w_Z-NC2b_Z, 100 N; multi: eight "
+                          "clearances, 200 N (the paper's Section IV)")
     simulate.add_argument("-o", "--output", required=True, help="NPZ file to write")
-    simulate.add_argument("--periods", type=int, default=8)
-    simulate.add_argument("--samples-per-period", type=int, default=30_000)
-    simulate.add_argument("--seed", type=int, default=0)
+    simulate.add_argument("--periods", type=int, default=8,
+                          help="periods of the multisine, the first ones transient (default "
+                          "8, the paper's)")
+    simulate.add_argument("--samples-per-period", type=int, default=30_000,
+                          help="samples per period at 2.5 kHz (default 30,000, the paper's "
+                          "12 s: 8 x 30,000 samples take about a minute; 2,500 gives a 1 s "
+                          "period for a quick look)")
+    simulate.add_argument("--seed", type=int, default=0,
+                          help="random phases and noise (default 0)")
     simulate.add_argument("--noise-percent", type=float, default=0.5,
                           help="output noise RMS in %% of the reference channel's RMS")
     simulate.set_defaults(run=_cmd_simulate)
 
     info = commands.add_parser("info", help="summarise a dataset (npz, csv, mat, h5, uff)")
-    info.add_argument("dataset")
+    info.add_argument("dataset", help="dataset file (npz, csv, mat, h5, uff)")
     info.add_argument("--inputs", help="comma-separated input channels (a CSV needs them)")
     info.add_argument("--outputs", help="comma-separated output channels (default: all; a "
                       "UFF file mixing quantities needs those of one)")
@@ -293,16 +303,23 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
                         help="analysis band (default: the lowest to the highest frequency "
                              "the input excites)")
     parser.add_argument("--block-rows", default="auto",
-                        help="the paper's i, or 'auto' (from the harmonic lines)")
-    parser.add_argument("--order", default="auto", help="model order n, or 'auto'")
-    parser.add_argument("--max-order", type=int, default=60)
-    parser.add_argument("--line-set", choices=["all", "excited"], default="all")
-    parser.add_argument("--discard-periods", type=int, default=1)
+                        help="the paper's i, or 'auto' (default: twice the rows order "
+                        "max-order needs, within what the harmonic lines allow)")
+    parser.add_argument("--order", default="auto",
+                        help="model order n, or 'auto' (default: from the stabilisation "
+                        "diagram)")
+    parser.add_argument("--max-order", type=int, default=60,
+                        help="highest order of the stabilisation diagram (default 60)")
+    parser.add_argument("--line-set", choices=["all", "excited"], default="all",
+                        help="lines of the band used: all, or the ones the input excites "
+                        "(default all)")
+    parser.add_argument("--discard-periods", type=int, default=1,
+                        help="leading transient periods left out (default 1)")
     parser.add_argument("--weighting", action="store_true",
                         help="weight by the noise covariance estimated between periods")
     parser.add_argument("--frequency-warping", action="store_true",
-                        help="build the data matrices in a warped frequency variable (bands "
-                        "far below fs: results then do not change with rounding)")
+                        help="build the data matrices in a warped frequency variable "
+                        "(changes the model class; off by default)")
     parser.add_argument("--refine", action="store_true",
                         help="refine the model by minimising its simulation error (slower; "
                         "the model then reproduces the measurement much more closely)")
@@ -488,14 +505,18 @@ def _add_study_commands(commands) -> None:
     diagnose = actions.add_parser("diagnose", help="rank candidate missing effects")
     diagnose.add_argument("study", help="study folder")
     diagnose.add_argument("--revision", type=int, help="revision to diagnose (default: latest)")
-    diagnose.add_argument("--top-locations", type=int, default=3)
-    diagnose.add_argument("--validated-candidates", type=int, default=4)
-    diagnose.add_argument("--curve-locations", type=int, default=1)
+    diagnose.add_argument("--top-locations", type=int, default=3,
+                          help="locations screened further per kind of effect (default 3)")
+    diagnose.add_argument("--validated-candidates", type=int, default=4,
+                          help="best candidates identified and simulated on the validation "
+                          "data (default 4)")
+    diagnose.add_argument("--curve-locations", type=int, default=1,
+                          help="locations whose spline stiffness curve is drawn (default 1)")
     diagnose.add_argument("--no-missing-mode", action="store_true",
                           help="do not try one more linear mode")
     diagnose.add_argument("--apply", action="store_true",
-                          help="add the best candidate as a new revision if it beats the "
-                          "noise floor")
+                          help="add the best candidate as a new revision if it passes the "
+                          "claim rule")
     diagnose.set_defaults(run=_cmd_study_diagnose)
 
     show = actions.add_parser("show", help="print the error history")

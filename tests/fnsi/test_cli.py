@@ -52,6 +52,10 @@ def test_info_prints_the_channels(records, capsys):
     assert code == 0
     summary = json.loads(out)
     assert summary["outputs"] == ["x1", "x2", "x3", "x4", "x5"]
+    # each channel's RMS and SNR (0.5 % output noise, so some 46 dB: 30-70 dB)
+    outputs = [c for c in summary["channels"] if c["role"] == "output"]
+    assert [c["name"] for c in outputs] == summary["outputs"]
+    assert all(c["rms"] > 0 and 30 < c["snr_db"] < 70 for c in outputs)
 
 
 def test_identify_refined_writes_the_refined_model(records, tmp_path, capsys):
