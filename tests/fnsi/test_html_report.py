@@ -9,6 +9,7 @@ image loads, nothing is logged as an error, the screenshot is not blank, the pag
 
 from __future__ import annotations
 
+import html
 import io
 import json
 import re
@@ -89,7 +90,7 @@ def test_the_study_report_shows_revisions_diagnoses_and_failures(folders, capsys
     assert failed["failure"], "order 40 was meant to give a model that cannot be simulated"
     for revision in study["revisions"]:
         assert f"Revision {revision['number']}: {revision['note']}" in page
-    assert "Diagnosis of revision 0" in page and diagnosis["summary"] in page
+    assert "Diagnosis of revision 0" in page and html.escape(diagnosis["summary"]) in page
     assert escape(f"the model could not be simulated: {failed['failure']}") in page
     assert "<td class=\"text\">failed</td>" in page  # the history row of the failed one
     assert failed_share((folder / "history.png").read_bytes()) > 0.005  # drawn as failed
