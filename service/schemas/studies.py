@@ -15,6 +15,7 @@ from service.schemas.identified import (
     ErrorSummary,
     IdentifiedCoefficient,
     RefinementSummary,
+    StoredDocument,
 )
 from service.store import JobState
 
@@ -214,7 +215,7 @@ class RevisionArtefacts(BaseModel):
     all: str = Field(description="Listing of every artefact of the job.")
 
 
-class RevisionModes(BaseModel):
+class RevisionModes(StoredDocument):
     """Natural frequencies and damping ratios of a revision's underlying linear system,
     mode by mode (same length)."""
 
