@@ -28,10 +28,10 @@ to a *column* of poles stable in frequency and shape that spans at least
 holds it, while poles that fit noise come and go. The automatic order
 (:func:`choose_order`) is the lowest order whose linear part can be simulated (every
 discrete pole inside the unit circle) and that holds the most *physical* poles: confirmed,
-in the band, and each carrying at least ``min_contribution`` of the power of the fitted
-frequency response over the band (:func:`modal_contributions`), which rejects persistent
-poles that explain nothing. The identification at the automatic order keeps the physical
-poles only.
+inside the band less a margin at its edges (:func:`inner_band`), and each carrying at
+least ``min_contribution`` of the fitted response in the measured quantity, averaged over
+the outputs (:func:`modal_contributions`), which rejects persistent poles that explain
+nothing. The identification at the automatic order keeps the physical poles only.
 """
 
 from __future__ import annotations
