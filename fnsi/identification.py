@@ -279,7 +279,8 @@ class IdentificationResult:
         ``confirmed`` flags from the stabilisation diagram (None when no higher order of
         the diagram follows the order). With ``order="auto"`` only the confirmed modes:
         the modes the automatic choice keeps (:func:`fnsi.stabilisation.choose_order`:
-        confirmed, persistent and carrying at least 1 % of the fitted response); with
+        confirmed, persistent and carrying at least 1 % of the fitted response, at the
+        lowest order where their estimates have converged); with
         an explicit order every physical pole, flagged.
     coefficients : tuple of Coefficient
         mu_j(omega) of every basis function, with the least-squares estimate over the band

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -171,6 +172,30 @@ def test_choose_order_prefers_a_simulable_order():
     assert choose_order(poles, (5.0, 50.0)) == 8
     # no stable order holds both: the lowest that does (its unstable poles get reflected)
     assert choose_order(poles[:3], (5.0, 50.0)) == 4
+
+
+def test_choose_order_waits_for_the_estimates_to_converge():
+    def order(n, frequencies, damping):
+        table = ModalTable(np.array(frequencies), np.array(damping), np.ones((2, 2)),
+                           ("y0", "y1"), np.ones(2, bool))
+        return OrderPoles(n, table, (PoleClass.STABLE,) * 2, 0.99)
+
+    # both modes from order 4 on; the 24 Hz mode (8 % damping) moves by 1.2 % from order
+    # 4 to 6, then by 0.1 %: 6 is the lowest order whose estimates agree with the highest
+    # (order 10) within half the tracking tolerances (0.5 % and 2.5 %)
+    poles = [order(4, [10.0, 24.3], [0.02, 0.085]), order(6, [10.0, 24.02], [0.02, 0.081]),
+             order(8, [10.0, 24.0], [0.02, 0.080]), order(10, [10.0, 24.0], [0.02, 0.080])]
+    assert choose_order(poles, (5.0, 50.0)) == 6
+    # a damping estimate still moving by 5 % (within the tracking tolerance) is not
+    # converged either
+    poles[1] = order(6, [10.0, 24.0], [0.02, 0.084])
+    assert choose_order(poles, (5.0, 50.0)) == 8
+    # only simulable orders are compared when one holds every mode: the highest of them is
+    # the reference
+    poles[2:] = [replace(p, spectral_radius=1.001) for p in poles[2:]]
+    assert choose_order(poles, (5.0, 50.0)) == 6
+    poles[1] = replace(poles[1], spectral_radius=1.001)
+    assert choose_order(poles, (5.0, 50.0)) == 4
 
 
 def test_choose_order_drops_poles_that_carry_nothing():
