@@ -90,7 +90,7 @@ from fnsi.smallsat import (
 from fnsi.spectra import band_lines, kept_record, output_spectra, period_mean
 from fnsi.stabilisation import macx_matrix, modal_contributions
 from fnsi.stiffness import StiffnessCurve, curve_error_percent, stiffness_curve
-from fnsi.subspace import band_warp, stacked_powers, warp_lines
+from fnsi.subspace import band_warp, row_basis, stacked_rows, warp_lines
 from fnsi.units import per
 
 HERE = Path(__file__).resolve().parent
@@ -556,8 +556,8 @@ def clearance_nc2() -> NonlinearElement:
 
 
 def input_rank(run: Run) -> tuple[int, int, int]:
-    """Numerical rank of the stacked extended inputs E_i (Eq. 10) of a run built in z and
-    in the warped variable w, and its row count (m + s) i.
+    """Numerical rank of the stacked extended inputs E_i (Eq. 10) of a run built from the
+    paper's powers in z and in the warped variable w, and its row count (m + s) i.
 
     E_i as :func:`fnsi.subspace.decompose` forms it (columns scaled to unit RMS). The rank
     counts singular values above max(shape) x eps x the largest (numpy's ``matrix_rank``
@@ -572,7 +572,7 @@ def input_rank(run: Run) -> tuple[int, int, int]:
     ranks = []
     for a in (0.0, band_warp(spectra.z)):
         lines = np.tile(warp_lines(spectra.z, a), spectra.inputs.shape[0])
-        stacked_powers(e, lines, settings.block_rows, stacked)
+        stacked_rows(e, row_basis(lines, settings.block_rows, "powers")[0], stacked)
         ranks.append(int(np.linalg.matrix_rank(stacked)))
     return ranks[0], ranks[1], stacked.shape[1]
 
