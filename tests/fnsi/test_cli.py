@@ -123,7 +123,7 @@ def test_study_create_diagnose_revise_show(records, tmp_path, capsys):
     assert code == 2
     assert "'x9'" in err and "not an output" in err
     code, out, _ = run(capsys, "study", "show", folder)
-    assert len(out.strip().splitlines()) == 3  # header + 2 revisions: nothing lost
+    assert len(out.strip().splitlines()) == 4  # header + 2 revisions + offsets: nothing lost
 
 
 def test_study_create_refuses_records_of_different_set_ups(records, tmp_path, capsys):

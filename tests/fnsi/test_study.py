@@ -75,7 +75,9 @@ def test_history_table_and_chart(study):
     assert rows[1]["elements"] == ["cubic spring x3"]
     assert rows[1]["nrmse_percent"] < rows[0]["nrmse_percent"] / 10
     table = study.history_table()
-    assert "add cubic spring x3" in table and len(table.splitlines()) == 3
+    assert "add cubic spring x3" in table and len(table.splitlines()) == 4
+    # the last line names the offsets removed from the validation data (tiny here)
+    assert table.splitlines()[-1].startswith("offsets of the validation data")
     figures = study_figures(study, 0)
     assert set(figures) == {"history.png", "revision-0-comparison.png",
                             "revision-0-residual-spectra.png", "revision-0-residual-map.png"}
