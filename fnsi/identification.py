@@ -34,14 +34,20 @@ from __future__ import annotations
 import dataclasses
 import numbers
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
 from fnsi.measurement import Layout, Measurement
-from fnsi.modal import Coefficient, ModalTable, modal_table, nonlinear_coefficients
+from fnsi.modal import (
+    Coefficient,
+    ModalTable,
+    missing_driving_point,
+    modal_table,
+    nonlinear_coefficients,
+)
 from fnsi.nonlinear import NonlinearElement
 from fnsi.offsets import Offsets, remove_offsets
 from fnsi.oversampling import oversampled_bases, oversampling_factor
@@ -121,7 +127,8 @@ class IdentificationSettings:
     driving_points : tuple of (str, str)
         (input, output) pairs: the output measured at the point and direction of a force.
         Default: found by name, input ``"<dof>"`` or ``"F_<dof>"`` -> output ``"<dof>"``
-        (:func:`fnsi.modal.default_driving_points`).
+        (:func:`fnsi.modal.default_driving_points`), where the names leave no doubt;
+        otherwise the result warns which names gave none (:func:`driving_point_warning`).
     average_bases : bool
         Evaluate the basis functions on the period-averaged displacement (and velocity),
         repeated over the kept periods. The steady state is periodic, so the average is
@@ -319,7 +326,8 @@ class IdentificationResult:
     warnings : tuple of str
         What makes the result unusable in part, in words, with what to change: a model
         whose linear part is unstable (it cannot be simulated; the automatic order
-        returns one only when no order of the diagram is stable). Empty when all is well.
+        returns one only when no order of the diagram is stable), elements without a
+        driving point (:func:`driving_point_warning`). Empty when all is well.
     units : ModelUnits
         Units of the data identified from (:mod:`fnsi.units`): FRF, coefficients and
         stiffness curves are in the units they derive; placeholders when not given.
@@ -728,7 +736,9 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     result = dataclasses.replace(
         _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
                   clock.timings), separability=separation,
-        warnings=notes + _instability(model, diagram), units=data.units, offsets=offsets)
+        warnings=notes + _instability(model, diagram) + tuple(filter(None, [
+            driving_point_warning(settings, data.input_names, data.output_names)])),
+        units=data.units, offsets=offsets)
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
     if settings.uncertainty:
@@ -747,6 +757,23 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         refinement = Refinement.refused(result.model, str(error))
     clock.done("refinement", 1.0, refinement.summary)
     return dataclasses.replace(result, model=refinement.model, refinement=refinement)
+
+
+def driving_point_warning(settings: IdentificationSettings, input_names: Sequence[str],
+                          output_names: Sequence[str]) -> str | None:
+    """Why no coefficient of the elements can be scaled and how to give a driving point,
+    when ``settings`` has elements but neither ``driving_points`` nor channel names give
+    one (:func:`fnsi.modal.missing_driving_point`); else None.
+
+    Parameters
+    ----------
+    settings : IdentificationSettings
+    input_names, output_names : sequence of str
+        The channels identified from.
+    """
+    if not settings.elements or settings.driving_points:
+        return None
+    return missing_driving_point(input_names, output_names)
 
 
 def _uncertainty(decomposition: SubspaceDecomposition, model: StateSpaceModel,

@@ -36,7 +36,12 @@ import numpy as np
 
 from fnsi.claim import Spectra, validation_spectra
 from fnsi.errors import ModelErrors, json_float, left_out_nrmse, model_errors
-from fnsi.identification import IdentificationResult, IdentificationSettings, identify
+from fnsi.identification import (
+    IdentificationResult,
+    IdentificationSettings,
+    driving_point_warning,
+    identify,
+)
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.offsets import Offsets, remove_offsets
@@ -401,6 +406,16 @@ class Study:
             return self.estimation
         return remove_offsets(self.estimation, self.settings.discard_periods)[0]
 
+    @property
+    def warnings(self) -> list[str]:
+        """What makes the revisions' results unusable in part, with what to change: their
+        elements have no driving point (:func:`fnsi.identification.driving_point_warning`)."""
+        elements = tuple(e for r in self.revisions for e in r.elements)
+        message = driving_point_warning(
+            replace(self.settings, elements=elements),
+            self.settings.inputs or self.estimation.input_names, self.output_names)
+        return [] if message is None else [message]
+
     def offsets(self, data: str) -> Offsets:
         """Offsets (means over the kept periods) of the study's channels in the
         ``"estimation"`` or ``"validation"`` data (:mod:`fnsi.offsets`)."""
@@ -660,8 +675,9 @@ class Study:
 
     def history_table(self) -> str:
         """The error history as a plain-text table (for the CLI); a revision whose model
-        could not be simulated says why below its row, one that was repaired how; the last
-        line names the offsets of the validation data (:mod:`fnsi.offsets`)."""
+        could not be simulated says why below its row, one that was repaired how; then
+        the study's :attr:`warnings`; the last line names the offsets of the validation
+        data (:mod:`fnsi.offsets`)."""
         lines = [f"{'rev':>3}  {'order':>5}  {'NRMSE %':>9}  {'floor %':>8}  change"]
         for row in self.history():
             e = row["nrmse_percent"]
@@ -672,6 +688,7 @@ class Study:
             if row["failure"]:
                 lines.append(f"{'':>3}  failed: {row['failure']}")
             lines += [f"{'':>3}  repaired: {words}" for words in row["repairs"]]
+        lines += [f"warning: {warning}" for warning in self.warnings]
         lines.append(self.offsets("validation").summary("validation") + (
             "; the estimation removed its own" if self.settings.remove_offsets else
             "; the estimation kept its own (remove_offsets removes them as sensor offsets)"))
@@ -691,6 +708,7 @@ class Study:
             | {"offsets": self.offsets("validation").to_json()},
             "revisions": [r.to_json(spectra=spectra) for r in self.revisions],
             "history": self.history(),
+            "warnings": self.warnings,
         }
 
     # -- persistence -----------------------------------------------------------------------

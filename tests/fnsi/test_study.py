@@ -6,6 +6,7 @@ spring at x3; revision 0 is linear, revision 1 adds the cubic spring.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -222,3 +223,15 @@ def test_revisions_give_their_errors_modes_and_coefficients_with_standard_deviat
                                                  modal["frequency_hz"], strict=True))
     (coefficient,) = document["coefficients"]
     assert 0 < coefficient["mean_real_std"] < 0.1 * abs(coefficient["mean_real"])
+
+
+def test_a_study_without_driving_point_warns_once_how_to_give_it(data):
+    renamed = [dataclasses.replace(m, input_names=("shaker",)) for m in data]
+    settings = dataclasses.replace(SETTINGS, driving_points=(), uncertainty=False)
+    study = Study(*renamed, settings)
+    assert study.warnings == []                  # no element yet: nothing to scale
+    study = Study.create(*renamed, dataclasses.replace(settings, elements=(CUBIC,)))
+    (warning,) = study.warnings
+    assert "input 'shaker' names no output" in warning and "driving_points" in warning
+    assert study.history_table().splitlines()[-2] == f"warning: {warning}"
+    assert study.to_json()["warnings"] == [warning]
