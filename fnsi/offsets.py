@@ -85,11 +85,16 @@ class Offsets:
 
     def summary(self, data: str) -> str:
         """One line naming the offsets of the ``data`` ("validation", ...)."""
-        words = [f"{name} {np.mean(values):.3g} {unit}"
-                 for kind in ("outputs", "inputs")
-                 for name, values, unit in self._channels(kind)]
-        return (f"offsets of the {data} data (mean of the kept periods; 0 Hz is not "
-                f"compared): {', '.join(words)}")
+        return describe(self.to_json(), data)
+
+
+def describe(offsets: dict, data: str) -> str:
+    """One line naming the offsets of :meth:`Offsets.to_json` in the ``data``
+    ("validation", ...), outputs first."""
+    words = [f"{c['channel']} {'-' if c['offset'] is None else format(c['offset'], '.3g')} "
+             f"{c['unit']}" for kind in ("outputs", "inputs") for c in offsets[kind]]
+    return (f"offsets of the {data} data (mean of the kept periods; 0 Hz is not "
+            f"compared): {', '.join(words)}")
 
 
 def remove_offsets(measurement: Measurement, discard_periods: int,
