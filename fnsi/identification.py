@@ -49,7 +49,7 @@ from fnsi.modal import (
     nonlinear_coefficients,
 )
 from fnsi.nonlinear import NonlinearElement
-from fnsi.offsets import Offsets, remove_offsets
+from fnsi.offsets import Offsets, measured_offsets, remove_offsets
 from fnsi.oversampling import oversampled_bases, oversampling_factor
 from fnsi.refinement import Refinement, refine
 from fnsi.separability import Separability, separability
@@ -710,8 +710,9 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     clock = _Clock(progress)
     settings = check_settings(measurement.layout, settings)
     data = measurement.select(settings.inputs, settings.outputs)
-    centred, offsets = remove_offsets(data, settings.discard_periods)
-    data = centred if settings.remove_offsets else data
+    offsets = measured_offsets(data, settings.discard_periods)
+    if settings.remove_offsets:
+        data = remove_offsets(data, settings.discard_periods)[0]
     clock.done("validation", 0.02, f"settings checked, {settings.block_rows} block rows")
     spectra, elements, ranges = extended_spectra(data, settings)
     separation = separability(spectra, data.n_inputs, elements)

@@ -123,9 +123,21 @@ def remove_offsets(measurement: Measurement, discard_periods: int,
     >>> float(offsets.outputs[0, 0]), centred.y[0, :, 0].tolist()
     (2.0, [1.0, -1.0, 0.5, -0.5])
     """
-    u_mean = kept_record(measurement.u, measurement.periods, discard_periods).mean(axis=1)
-    y_mean = kept_record(measurement.y, measurement.periods, discard_periods).mean(axis=1)
-    centred = replace(measurement, u=measurement.u - u_mean[:, None],
-                      y=measurement.y - y_mean[:, None])
-    return centred, Offsets(measurement.input_names, measurement.output_names, u_mean,
-                            y_mean, measurement.input_units, measurement.output_units)
+    offsets = measured_offsets(measurement, discard_periods)
+    return replace(measurement, u=measurement.u - offsets.inputs[:, None],
+                   y=measurement.y - offsets.outputs[:, None]), offsets
+
+
+def measured_offsets(measurement: Measurement, discard_periods: int) -> Offsets:
+    """The offsets of :func:`remove_offsets` without a centred copy of the record.
+
+    Parameters
+    ----------
+    measurement : Measurement
+    discard_periods : int
+        Leading transient periods left out of the mean.
+    """
+    means = [kept_record(x, measurement.periods, discard_periods).mean(axis=1)
+             for x in (measurement.u, measurement.y)]
+    return Offsets(measurement.input_names, measurement.output_names, *means,
+                   measurement.input_units, measurement.output_units)

@@ -44,7 +44,7 @@ from fnsi.identification import (
 )
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
-from fnsi.offsets import Offsets, remove_offsets
+from fnsi.offsets import Offsets, measured_offsets, remove_offsets
 from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve
@@ -421,7 +421,7 @@ class Study:
         ``"estimation"`` or ``"validation"`` data (:mod:`fnsi.offsets`)."""
         measurement = {"estimation": self.estimation, "validation": self.validation}[data]
         channels = measurement.select(self.settings.inputs, self.output_names)
-        return remove_offsets(channels, self.settings.discard_periods)[1]
+        return measured_offsets(channels, self.settings.discard_periods)
 
     @functools.cached_property
     def _validation_kept(self) -> tuple[np.ndarray, int]:
