@@ -130,6 +130,7 @@ def _identification_settings(args: argparse.Namespace, measurement):
         frequency_warping=args.frequency_warping,
         driving_points=tuple(_pair(text) for text in args.driving_point),
         refine=args.refine, uncertainty=not args.no_uncertainty,
+        remove_offsets=args.remove_offsets,
     )
 
 
@@ -171,6 +172,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             print(f"  warning: {separation.concern}")
     if result.refinement is not None:
         print(result.refinement.summary)
+    print(result.offsets.summary("estimation") + ("; removed before the estimation"
+                                                  if settings.remove_offsets else ""))
     return 0
 
 
@@ -332,6 +335,10 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--driving-point", action="append", default=[], metavar="INPUT,OUTPUT",
                         help="output measured at the point and direction of an input "
                         "(repeatable; default: found by name)")
+    parser.add_argument("--remove-offsets", action="store_true",
+                        help="remove each channel's mean (a sensor offset) before the "
+                        "estimation, so that the elements see zero-mean displacement; for "
+                        "displacement sensors not zeroed at the equilibrium")
 
 
 # -- fnsi study: modelling studies kept in a folder (fnsi.study.Study.save / load) ---------

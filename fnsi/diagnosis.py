@@ -1128,7 +1128,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
 
     start = time.perf_counter()
     report(0.0, "preparing the screening")
-    problem = ScreeningProblem(study.estimation, base.model, study.settings.band,
+    problem = ScreeningProblem(study.identified_estimation, base.model, study.settings.band,
                                study.settings.discard_periods)
     locations = candidate_locations(base.model.output_names, study.connections)
     scores = screen_locations(problem, locations, settings.screening_intervals,

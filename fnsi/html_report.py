@@ -135,18 +135,28 @@ def identification_page(document: Mapping[str, Any], figures: Mapping[str, bytes
     sections = [Section(f"Model of order {document['order']}", warnings=document["warnings"],
                         tables=[modes] + ([coefficients] if document["coefficients"] else []))]
     for kind, errors in document.get("errors", {}).items():
-        sections.append(_errors_section(f"Simulation errors on the {kind} data", errors))
+        sections.append(_errors_section(kind, errors))
     sections.append(Section("Figures", figures=_pngs(figures)))
     return render_page(title, sections)
 
 
-def _errors_section(heading: str, errors: Mapping[str, Any]) -> Section:
+def _offsets_sentence(offsets: Mapping[str, Any], data: str) -> str:
+    """:func:`fnsi.offsets.describe` as a sentence (channel names keep their case)."""
+    from fnsi.offsets import describe  # numerical imports: not for the CLI's start-up
+
+    text = describe(offsets, data)
+    return f"{text[:1].upper()}{text[1:]}."
+
+
+def _errors_section(kind: str, errors: Mapping[str, Any]) -> Section:
+    heading = f"Simulation errors on the {kind} data"
     if "failure" in errors:
         return Section(heading, warnings=[f"the model could not be simulated: "
                                           f"{errors['failure']}"])
     overall = (f"Overall NRMSE {cell_text(errors['overall_nrmse_percent'])} % against a "
                f"noise floor of {cell_text(errors['overall_noise_floor_percent'])} %.")
-    return Section(heading, paragraphs=[overall], tables=[_errors_table(errors)])
+    offsets = [_offsets_sentence(errors["offsets"], kind)] if "offsets" in errors else []
+    return Section(heading, paragraphs=[overall, *offsets], tables=[_errors_table(errors)])
 
 
 def _errors_table(errors: Mapping[str, Any]) -> Table:
@@ -218,8 +228,11 @@ def study_page(study: Mapping[str, Any], figures: Mapping[str, bytes],
                      for r in study["history"]])
     prefixes = tuple(f"revision-{r['number']}-" for r in study["revisions"])
     general = {n: c for n, c in _pngs(figures).items() if not n.startswith(prefixes)}
+    offsets = study["validation"].get("offsets")
     sections = [Section("Error history on the validation data", tables=[history],
-                        figures=general)]
+                        figures=general, warnings=study.get("warnings", []),
+                        paragraphs=[_offsets_sentence(offsets, "validation")]
+                        if offsets else [])]
     sections += [_revision_section(r, figures) for r in study["revisions"]]
     sections += [_diagnosis_section(d) for d in diagnoses]
     name = study.get("name") or "unnamed"

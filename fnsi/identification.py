@@ -2,8 +2,9 @@
 
 Pipeline (paper Sections II and IV), each stage timed:
 
-1. ``spectra``: channel selection, transient periods dropped, displacement (and velocity)
-   time series by exact periodic integration, DFT on the analysis lines (Eq. 6).
+1. ``spectra``: channel selection, sensor offsets removed if asked (:mod:`fnsi.offsets`),
+   transient periods dropped, displacement (and velocity) time series by exact periodic
+   integration, DFT on the analysis lines (Eq. 6).
 2. ``bases``: the basis functions g_j of every element (Eq. 2, 19-22) evaluated in the
    time domain on the relative displacement (and velocity) of its two output channels
    (period-averaged by default, see ``average_bases``), automatic spline knots placed
@@ -33,15 +34,22 @@ from __future__ import annotations
 import dataclasses
 import numbers
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
 from fnsi.measurement import Layout, Measurement
-from fnsi.modal import Coefficient, ModalTable, modal_table, nonlinear_coefficients
+from fnsi.modal import (
+    Coefficient,
+    ModalTable,
+    missing_driving_point,
+    modal_table,
+    nonlinear_coefficients,
+)
 from fnsi.nonlinear import NonlinearElement
+from fnsi.offsets import Offsets, measured_offsets, remove_offsets
 from fnsi.oversampling import oversampled_bases, oversampling_factor
 from fnsi.refinement import Refinement, refine
 from fnsi.separability import Separability, separability
@@ -119,7 +127,8 @@ class IdentificationSettings:
     driving_points : tuple of (str, str)
         (input, output) pairs: the output measured at the point and direction of a force.
         Default: found by name, input ``"<dof>"`` or ``"F_<dof>"`` -> output ``"<dof>"``
-        (:func:`fnsi.modal.default_driving_points`).
+        (:func:`fnsi.modal.default_driving_points`), where the names leave no doubt;
+        otherwise the result warns which names gave none (:func:`driving_point_warning`).
     average_bases : bool
         Evaluate the basis functions on the period-averaged displacement (and velocity),
         repeated over the kept periods. The steady state is periodic, so the average is
@@ -168,6 +177,18 @@ class IdentificationSettings:
         coefficients from the period-to-period noise, propagated to first order through
         the identification (:mod:`fnsi.uncertainty`). Needs two kept periods; with one,
         the result says that no error bar can be given.
+    remove_offsets : bool
+        Take each channel's mean over the kept periods as a sensor offset and remove it
+        before the estimation, and before the model is driven by a measured input
+        (:mod:`fnsi.offsets`): the elements then see zero-mean displacement, as they
+        always do with velocity or acceleration data. Turn it on for a displacement
+        sensor whose zero is not the equilibrium (an electronic offset; a cubic spring
+        seen through an offset of 0.3 times the RMS response came out 8 % low). Off by
+        default because a calibrated or simulated sensor reads the true displacement,
+        whose mean is the static displacement that the elements themselves cause, and
+        which they see (removing 0.8 % of a clearance's gap moved a test's first mode by
+        0.07 %). The comparison with measured data never includes 0 Hz, and it reports
+        the offsets either way.
     """
 
     band: tuple[float, float]
@@ -187,6 +208,7 @@ class IdentificationSettings:
     memory_limit_mb: float = 8192.0
     refine: bool = False
     uncertainty: bool = True
+    remove_offsets: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -305,13 +327,17 @@ class IdentificationResult:
     warnings : tuple of str
         What makes the result unusable in part, in words, with what to change: a model
         whose linear part is unstable (it cannot be simulated; the automatic order
-        returns one only when no order of the diagram is stable). Empty when all is well.
+        returns one only when no order of the diagram is stable), elements without a
+        driving point (:func:`driving_point_warning`). Empty when all is well.
     units : ModelUnits
         Units of the data identified from (:mod:`fnsi.units`): FRF, coefficients and
         stiffness curves are in the units they derive; placeholders when not given.
     uncertainty : Uncertainty or None
         Standard deviations of the modes and coefficients (:mod:`fnsi.uncertainty`);
         None when not asked (``settings.uncertainty`` false).
+    offsets : Offsets or None
+        Mean of each channel of the estimation data over the kept periods (:mod:`fnsi.
+        offsets`), removed before the estimation when ``settings.remove_offsets``.
     """
 
     model: StateSpaceModel
@@ -328,6 +354,7 @@ class IdentificationResult:
     warnings: tuple[str, ...] = ()
     units: ModelUnits = field(default_factory=lambda: ModelUnits("", "", "displacement"))
     uncertainty: Uncertainty | None = None
+    offsets: Offsets | None = None
 
     def coefficient_unit(self, coefficient: Coefficient) -> str:
         """Unit of a coefficient: force per unit of its basis function (Eq. 1-2)."""
@@ -337,7 +364,9 @@ class IdentificationResult:
         """JSON-ready result (complex shapes as [re, im] pairs), each standard deviation
         beside its value (``*_std``, null when none could be given); coefficients carry
         their ``unit``, stiffness curves their ``x_unit`` and ``force_unit``, ``units``
-        those of the data (input, output, displacement, FRF)."""
+        those of the data (input, output, displacement, FRF), ``offsets`` the mean of each
+        channel of the estimation data (:meth:`fnsi.offsets.Offsets.to_json`) and whether
+        it was ``removed`` (``settings.remove_offsets``)."""
         m = self.modal
         return {
             "warnings": list(self.warnings),
@@ -362,6 +391,8 @@ class IdentificationResult:
             "settings": None if self.settings is None else self.settings.to_json(),
             "refinement": None if self.refinement is None else self.refinement.to_json(),
             "separability": [s.to_json() for s in self.separability],
+            "offsets": None if self.offsets is None else self.offsets.to_json()
+            | {"removed": self.settings is not None and self.settings.remove_offsets},
         }
 
     def coefficients_json(self) -> list[dict]:
@@ -522,8 +553,8 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     u = kept_record(data.u, data.periods, settings.discard_periods)
     y = kept_record(data.y, data.periods, settings.discard_periods)
     needs_velocity = any(e.needs_velocity for e in settings.elements)
-    # a measured displacement keeps its static offset (which clearances see); integrated
-    # ones have zero mean
+    # a measured displacement keeps its mean (which clearances see) unless the settings
+    # remove it as a sensor offset (fnsi.offsets); integrated ones have zero mean
     x, v = displacement_velocity(y, data.fs, data.quantity, needs_velocity)
     if settings.average_bases:
         xb, vb = period_mean(x, periods), None if v is None else period_mean(v, periods)
@@ -680,6 +711,9 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     clock = _Clock(progress)
     settings = check_settings(measurement.layout, settings)
     data = measurement.select(settings.inputs, settings.outputs)
+    offsets = measured_offsets(data, settings.discard_periods)
+    if settings.remove_offsets:
+        data = remove_offsets(data, settings.discard_periods)[0]
     clock.done("validation", 0.02, f"settings checked, {settings.block_rows} block rows")
     spectra, elements, ranges = extended_spectra(data, settings)
     separation = separability(spectra, data.n_inputs, elements)
@@ -704,7 +738,9 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     result = dataclasses.replace(
         _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
                   clock.timings), separability=separation,
-        warnings=notes + _instability(model, diagram), units=data.units)
+        warnings=notes + _instability(model, diagram) + tuple(filter(None, [
+            driving_point_warning(settings, data.input_names, data.output_names)])),
+        units=data.units, offsets=offsets)
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")
     if settings.uncertainty:
@@ -723,6 +759,23 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         refinement = Refinement.refused(result.model, str(error))
     clock.done("refinement", 1.0, refinement.summary)
     return dataclasses.replace(result, model=refinement.model, refinement=refinement)
+
+
+def driving_point_warning(settings: IdentificationSettings, input_names: Sequence[str],
+                          output_names: Sequence[str]) -> str | None:
+    """Why no coefficient of the elements can be scaled and how to give a driving point,
+    when ``settings`` has elements but neither ``driving_points`` nor channel names give
+    one (:func:`fnsi.modal.missing_driving_point`); else None.
+
+    Parameters
+    ----------
+    settings : IdentificationSettings
+    input_names, output_names : sequence of str
+        The channels identified from.
+    """
+    if not settings.elements or settings.driving_points:
+        return None
+    return missing_driving_point(input_names, output_names)
 
 
 def _uncertainty(decomposition: SubspaceDecomposition, model: StateSpaceModel,

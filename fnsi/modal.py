@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -315,23 +315,58 @@ def default_driving_points(input_names, output_names) -> dict[str, str]:
     >>> default_driving_points(("u",), ("y",))
     {'u': 'y'}
     """
-    outputs = list(output_names)
-    points = {}
-    for u in input_names:
-        if u in outputs:
-            points[u] = u
-            continue
-        match = FORCE_NAME.match(u)
-        if match is None:
-            continue
-        point = match["point"]
-        found = [f"{prefix}{point}" for prefix in RESPONSE_PREFIXES
-                 if f"{prefix}{point}" in outputs]
-        if len(found) == 1:
-            points[u] = found[0]
-    if not points and tuple(input_names) == ("u",) and tuple(outputs) == ("y",):
+    points = {u: found[0] for u, found in _named_points(input_names, output_names).items()
+              if len(found) == 1}
+    if not points and tuple(input_names) == ("u",) and tuple(output_names) == ("y",):
         points["u"] = "y"
     return points
+
+
+def _named_points(input_names, output_names) -> dict[str, list[str]]:
+    """Outputs each input's name points at (:func:`default_driving_points`): none, one,
+    or several (ambiguous)."""
+    outputs = list(output_names)
+    named = {}
+    for u in input_names:
+        match = FORCE_NAME.match(u)
+        named[u] = ([u] if u in outputs else [] if match is None else
+                    [f"{prefix}{match['point']}" for prefix in RESPONSE_PREFIXES
+                     if f"{prefix}{match['point']}" in outputs])
+    return named
+
+
+MAX_NAMED = 10
+"""Outputs listed by :func:`missing_driving_point` (a message, not a channel table)."""
+
+
+def missing_driving_point(input_names: Sequence[str], output_names: Sequence[str],
+                          ) -> str | None:
+    """Why the names give no driving point, and how to give one; None when they give one.
+
+    Without a driving point the FRF columns at an element cannot be scaled, so no
+    nonlinear coefficient is identified (:func:`nonlinear_coefficients`).
+
+    Examples
+    --------
+    >>> missing_driving_point(("f1",), ("x1", "y1")).split(":")[0]
+    "no driving point found by name (input 'f1' names several outputs"
+    >>> missing_driving_point(("f1",), ("x1", "x2")) is None
+    True
+    """
+    if default_driving_points(input_names, output_names):
+        return None
+    why = ", ".join(
+        f"input {u!r} names several outputs: {', '.join(found)}" if found else
+        f"input {u!r} names no output" for u, found in _named_points(input_names,
+                                                                     output_names).items())
+    outputs = ", ".join(output_names[:MAX_NAMED]) + (
+        f" and {len(output_names) - MAX_NAMED} more" if len(output_names) > MAX_NAMED else "")
+    return (f"no driving point found by name ({why}): the nonlinear coefficients cannot be "
+            f"scaled, so none is identified. Give the output measured at the point and "
+            f"direction of a force (outputs: {outputs}): command line "
+            f"--driving-point INPUT,OUTPUT, HTTP \"driving_points\": [[\"INPUT\", "
+            f"\"OUTPUT\"]], Python IdentificationSettings(driving_points=((\"INPUT\", "
+            f"\"OUTPUT\"),)); or name the force after it (F_<output>)")
 
 
 def nonlinear_coefficients(model: StateSpaceModel, frequencies: np.ndarray,
@@ -420,10 +455,9 @@ def _element_coefficients(model, frequencies, He, element, cols, outputs, points
         return [-He[:, p, j] / denom for j in cols], np.abs(denom) ** 2, "driving point", None
     if not points:
         return None, None, "none", (
-            f"{element.name}: no force acts at its DOFs and no input has a measured driving "
-            "point (an output named like the input, or driving_points), so the FRF columns "
-            f"at {element.dof}" + (f" and {element.ref}" if element.ref else "")
-            + " cannot be scaled; measure the response at the force location")
+            f"{element.name}: no input has a driving point (an output measured at the "
+            f"point and direction of the force), so the FRF columns at {element.dof}"
+            + (f" and {element.ref}" if element.ref else "") + " cannot be scaled")
     a, p = next(iter(points.items()))
     h = _synthesised_column(model, frequencies, a, p, dof)
     if ref is not None:

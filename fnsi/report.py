@@ -9,7 +9,9 @@ One function builds what the service's identification jobs store and what
     validation) data, NaN written as null (strict JSON). Its top-level ``warnings`` list
     says what makes the model unusable: the identification's (an unstable linear part)
     and a model that could not be simulated on the estimation or validation data, whose
-    errors section then holds ``failure``, the reason, instead of errors.
+    errors section then holds ``failure``, the reason, instead of errors. Each errors
+    section holds the ``offsets`` removed from its data before the comparison
+    (:mod:`fnsi.offsets`; 0 Hz is never compared).
 ``model.npz``
     :meth:`StateSpaceModel.to_npz`.
 ``frf.png``, ``stabilisation.png``, ``coefficients.png``, ``stiffness.png``, ``macx.png``
@@ -50,7 +52,7 @@ from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import output_spectra
 from fnsi.stabilisation import macx_matrix
-from fnsi.validation import compare_identified
+from fnsi.validation import Comparison, compare_identified
 
 Progress = Callable[[float, str], None]
 
@@ -131,11 +133,15 @@ def identification_report(result: IdentificationResult, settings: Identification
     report = progress or (lambda fraction, message: None)
     document = result.to_json()
     report(0.0, "simulating the model on the estimation data")
-    compared = {"estimation": _errors(result, estimation)}
+    comparisons = {"estimation": _comparison(result, estimation)}
     if validation is not None:
         report(0.3, "simulating the model on the validation data")
-        compared["validation"] = _errors(result, validation)
-    document["errors"] = {kind: errors.to_json() if isinstance(errors, ModelErrors) else errors
+        comparisons["validation"] = _comparison(result, validation)
+    compared = {kind: c.errors if isinstance(c, Comparison) else c
+                for kind, c in comparisons.items()}
+    offsets = {kind: c.offsets for kind, c in comparisons.items() if isinstance(c, Comparison)}
+    document["errors"] = {kind: errors.to_json() | {"offsets": offsets[kind].to_json()}
+                          if isinstance(errors, ModelErrors) else errors
                           for kind, errors in compared.items()}
     document["warnings"] = list(result.warnings) + _simulation_warnings(result, compared)
     document = strict_json(document)
@@ -166,11 +172,12 @@ def analysis_artefacts(analysis: DistortionAnalysis) -> dict[str, bytes]:
             REPORT_NAME: analysis_page(document, figures)}
 
 
-def _errors(result: IdentificationResult,
-            measurement: Measurement) -> ModelErrors | dict[str, str]:
-    """The model's errors on a measurement, or why it could not be simulated."""
+def _comparison(result: IdentificationResult,
+                measurement: Measurement) -> Comparison | dict[str, str]:
+    """The model's errors and the sensor offsets on a measurement, or why it could not be
+    simulated."""
     try:
-        return compare_identified(result, measurement).errors
+        return compare_identified(result, measurement)
     except ValueError as err:  # e.g. an unstable model cannot be simulated
         return {"failure": str(err)}
 

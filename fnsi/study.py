@@ -8,7 +8,9 @@ model, often linear (an order and no nonlinear elements). Every revision is iden
 with FNSI on the estimation data (:func:`fnsi.identification.identify`), simulated to
 periodic steady state with the validation input and compared with the validation outputs
 (:func:`fnsi.validation.compare`): per-channel
-and overall NRMSE in % and dB, the noise floor, and the error on every DFT line.
+and overall NRMSE in % and dB, the noise floor, and the error on every DFT line but
+0 Hz: each channel's offset (its mean over the kept periods, :mod:`fnsi.offsets`) is not
+compared, and is reported in ``study.json`` and below the history table.
 
 The error history shows revision by revision whether the model improves; the diagnosis
 (:mod:`fnsi.diagnosis`) proposes what to add next.
@@ -34,9 +36,15 @@ import numpy as np
 
 from fnsi.claim import Spectra, validation_spectra
 from fnsi.errors import ModelErrors, json_float, left_out_nrmse, model_errors
-from fnsi.identification import IdentificationResult, IdentificationSettings, identify
+from fnsi.identification import (
+    IdentificationResult,
+    IdentificationSettings,
+    driving_point_warning,
+    identify,
+)
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
+from fnsi.offsets import Offsets, measured_offsets, remove_offsets
 from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
 from fnsi.stiffness import StiffnessCurve
@@ -385,9 +393,41 @@ class Study:
         self.revisions: list[Revision] = []
 
     @functools.cached_property
+    def centred_validation(self) -> Measurement:
+        """The validation data without their sensor offsets, as every revision is compared
+        with them (:mod:`fnsi.offsets`, :func:`fnsi.validation.compare`)."""
+        return remove_offsets(self.validation, self.settings.discard_periods)[0]
+
+    @functools.cached_property
+    def identified_estimation(self) -> Measurement:
+        """The estimation data as the identification sees them: without their offsets
+        when ``settings.remove_offsets`` (:mod:`fnsi.offsets`)."""
+        if not self.settings.remove_offsets:
+            return self.estimation
+        return remove_offsets(self.estimation, self.settings.discard_periods)[0]
+
+    @property
+    def warnings(self) -> list[str]:
+        """What makes the revisions' results unusable in part, with what to change: their
+        elements have no driving point (:func:`fnsi.identification.driving_point_warning`)."""
+        elements = tuple(e for r in self.revisions for e in r.elements)
+        message = driving_point_warning(
+            replace(self.settings, elements=elements),
+            self.settings.inputs or self.estimation.input_names, self.output_names)
+        return [] if message is None else [message]
+
+    def offsets(self, data: str) -> Offsets:
+        """Offsets (means over the kept periods) of the study's channels in the
+        ``"estimation"`` or ``"validation"`` data (:mod:`fnsi.offsets`)."""
+        measurement = {"estimation": self.estimation, "validation": self.validation}[data]
+        channels = measurement.select(self.settings.inputs, self.output_names)
+        return measured_offsets(channels, self.settings.discard_periods)
+
+    @functools.cached_property
     def _validation_kept(self) -> tuple[np.ndarray, int]:
-        """Steady-state validation outputs of the study's channels and their periods."""
-        validation = self.validation.select(outputs=self.output_names)
+        """Steady-state validation outputs of the study's channels (offsets removed) and
+        their periods."""
+        validation = self.centred_validation.select(outputs=self.output_names)
         kept = validation.periods - self.settings.discard_periods
         return kept_record(validation.y, validation.periods,
                            self.settings.discard_periods), kept
@@ -488,8 +528,8 @@ class Study:
             return Evaluation(elements, result, None, None, None, failure="; ".join(
                 (*failures, *result.warnings)), repairs=repairs)
         errors = comparison.errors
-        validation = self.validation.select(inputs=result.model.input_names,
-                                            outputs=result.model.output_names)
+        validation = self.centred_validation.select(inputs=result.model.input_names,
+                                                    outputs=result.model.output_names)
         kept = validation.periods - self.settings.discard_periods
         spread = pooled_std_percent(
             kept_record(validation.y, validation.periods, self.settings.discard_periods),
@@ -635,7 +675,9 @@ class Study:
 
     def history_table(self) -> str:
         """The error history as a plain-text table (for the CLI); a revision whose model
-        could not be simulated says why below its row, one that was repaired how."""
+        could not be simulated says why below its row, one that was repaired how; then
+        the study's :attr:`warnings`; the last line names the offsets of the validation
+        data (:mod:`fnsi.offsets`)."""
         lines = [f"{'rev':>3}  {'order':>5}  {'NRMSE %':>9}  {'floor %':>8}  change"]
         for row in self.history():
             e = row["nrmse_percent"]
@@ -646,6 +688,10 @@ class Study:
             if row["failure"]:
                 lines.append(f"{'':>3}  failed: {row['failure']}")
             lines += [f"{'':>3}  repaired: {words}" for words in row["repairs"]]
+        lines += [f"warning: {warning}" for warning in self.warnings]
+        lines.append(self.offsets("validation").summary("validation") + (
+            "; the estimation removed its own" if self.settings.remove_offsets else
+            "; the estimation kept its own (remove_offsets removes them as sensor offsets)"))
         return "\n".join(lines)
 
     def to_json(self, *, spectra: bool = False) -> dict:
@@ -656,10 +702,13 @@ class Study:
             "name": self.name,
             "settings": _settings_json(self.settings),
             "connections": [list(pair) for pair in self.connections],
-            "estimation": _measurement_json(self.estimation),
-            "validation": _measurement_json(self.validation),
+            "estimation": _measurement_json(self.estimation)
+            | {"offsets": self.offsets("estimation").to_json()},
+            "validation": _measurement_json(self.validation)
+            | {"offsets": self.offsets("validation").to_json()},
             "revisions": [r.to_json(spectra=spectra) for r in self.revisions],
             "history": self.history(),
+            "warnings": self.warnings,
         }
 
     # -- persistence -----------------------------------------------------------------------

@@ -66,7 +66,8 @@ def _errors(revision: Revision):
 
 def plot_comparison(study: Study, revision: int = -1, *, window_s: float | None = None,
                     channels: Sequence[str] | None = None) -> bytes:
-    """Measured vs simulated validation outputs: a time window and the spectrum.
+    """Measured vs simulated validation outputs: a time window and the spectrum, both
+    without the 0 Hz line (sensor offsets), as the revision was compared.
 
     Parameters
     ----------
@@ -87,7 +88,7 @@ def plot_comparison(study: Study, revision: int = -1, *, window_s: float | None 
     errors = _errors(rev)
     names = rev.model.output_names
     picks = ([names.index(c) for c in channels] if channels else _worst_channels(rev))
-    validation = study.validation.select(outputs=names)
+    validation = study.centred_validation.select(outputs=names)   # as it was compared
     unit = study.units.output
     n = validation.period_length
     measured = validation.y[0, -n:]

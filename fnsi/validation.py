@@ -7,6 +7,12 @@ simulate_oversampled`); FNSI models predict displacement, so the
 prediction is differentiated exactly (periodic data) into the measured quantity and
 compared with the kept periods of the measurement (:func:`fnsi.errors.model_errors`),
 per channel and per line, against the noise floor.
+
+Both sides are compared without their 0 Hz line, which no identification band contains
+(:mod:`fnsi.offsets`): the measured outputs lose their mean over the kept periods (their
+sensor offsets, reported in :attr:`Comparison.offsets`) and the simulated outputs theirs.
+The input drives the model as the estimation saw it: without its offset when the model
+was identified with ``remove_offsets``.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import numpy as np
 
 from fnsi.errors import ModelErrors, model_errors
 from fnsi.measurement import Measurement
+from fnsi.offsets import Offsets, remove_offsets
 from fnsi.oversampling import simulate_oversampled
 from fnsi.spectra import INTEGRATIONS, integrate_periodic, kept_record
 from fnsi.statespace import StateSpaceModel
@@ -38,18 +45,22 @@ class Comparison:
     ----------
     simulated : ndarray, shape (realisations, period_length, l)
         One steady-state period of the model's outputs per realisation, in the measured
-        quantity.
+        quantity, with zero mean like the measurement it is compared with.
     errors : ModelErrors
-        NRMSE per channel and line against the noise floor of the kept periods.
+        NRMSE per channel and line against the noise floor of the kept periods, without
+        the 0 Hz line.
+    offsets : Offsets
+        Sensor offsets removed from the measurement (:mod:`fnsi.offsets`).
     """
 
     simulated: np.ndarray
     errors: ModelErrors
+    offsets: Offsets
 
 
 def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
             band_high: float, oversampling: int | None = None,
-            feedthrough: str = "implicit") -> Comparison:
+            feedthrough: str = "implicit", offsets_removed: bool = False) -> Comparison:
     """Simulate ``model`` with the input of ``measurement`` and compare the outputs.
 
     Parameters
@@ -70,10 +81,16 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     feedthrough : {"implicit", "explicit"}
         Treatment of the nonlinear feed-through (:mod:`fnsi.simulation`): ``"explicit"``
         runs a model whose implicit output equation folds.
+    offsets_removed : bool
+        The model was identified on data without their sensor offsets
+        (``IdentificationSettings.remove_offsets``), so it is driven by the measured input
+        without its offset too.
 
     Returns
     -------
     Comparison
+        Simulated outputs and errors with the 0 Hz line of both sides removed, and the
+        measurement's offsets.
 
     Raises
     ------
@@ -82,20 +99,22 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
         simulated (:class:`fnsi.simulation.SimulationDivergedError`).
     """
     data = measurement.select(inputs=model.input_names, outputs=model.output_names)
-    measured = kept_record(data.y, data.periods, discard_periods)
-    u = data.u[:, -data.period_length:]
+    centred, offsets = remove_offsets(data, discard_periods)
+    measured = kept_record(centred.y, data.periods, discard_periods)
+    u = (centred if offsets_removed else data).u[:, -data.period_length:]
     periods = simulate_oversampled(model, u, band_high, oversampling, feedthrough)
     simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
+    simulated = simulated - simulated.mean(axis=1, keepdims=True)
     high = min(data.fs / 2, ERROR_BAND_FACTOR * band_high)
     errors = model_errors(measured, simulated, data.fs, periods=data.periods - discard_periods,
                           output_names=data.output_names, band=(0.0, high))
-    return Comparison(simulated, errors)
+    return Comparison(simulated, errors, offsets)
 
 
 def compare_identified(result: IdentificationResult, measurement: Measurement,
                        feedthrough: str = "implicit") -> Comparison:
-    """:func:`compare` for an identification: its transient periods and band, and a
-    refined model simulated at fs, the simulation refinement fitted it through
+    """:func:`compare` for an identification: its transient periods, band and offset
+    rule, and a refined model simulated at fs, the simulation refinement fitted it through
     (:mod:`fnsi.oversampling`).
 
     Parameters
@@ -114,4 +133,4 @@ def compare_identified(result: IdentificationResult, measurement: Measurement,
     refined = result.refinement is not None and result.refinement.iterations > 0
     return compare(result.model, measurement, discard_periods=result.settings.discard_periods,
                    band_high=result.settings.band[1], oversampling=1 if refined else None,
-                   feedthrough=feedthrough)
+                   feedthrough=feedthrough, offsets_removed=result.settings.remove_offsets)

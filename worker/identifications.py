@@ -26,6 +26,7 @@ def settings_of(request: dict[str, Any], memory_limit_mb: float) -> Identificati
         discard_periods=request["discard_periods"], weighting=request["weighting"],
         frequency_warping=request.get("frequency_warping", False),
         refine=request.get("refine", False), uncertainty=request.get("uncertainty", True),
+        remove_offsets=request.get("remove_offsets", False),
         inputs=request["inputs"], outputs=request["outputs"],
         driving_points=tuple(tuple(p) for p in request["driving_points"]),
         elements=tuple(NonlinearElement.from_json(e) for e in request["elements"]))

@@ -37,7 +37,7 @@ def _revision_result(context: JobContext, study: Study, number: int) -> dict[str
                                  json.dumps(detail).encode())
     return {"study_id": context.job.request["study_id"], "revision": number,
             "revision_summary": strict_json(revision.to_json()),
-            "history": strict_json(study.history())}
+            "history": strict_json(study.history()), "warnings": study.warnings}
 
 
 def _change(context: JobContext, change) -> dict[str, Any]:

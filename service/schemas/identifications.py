@@ -215,6 +215,11 @@ class IdentificationRequest(RequestModel):
         "measured at the point and direction of the force; scales the coefficients. "
         "Outputs named like an input are driving points anyway.",
         examples=[[["F_x1", "x1"]]])
+    remove_offsets: StrictBool = Field(
+        False, description="Remove each channel's mean over the kept periods (a sensor "
+        "offset) before the estimation, so that the nonlinear elements see zero-mean "
+        "displacement: for displacement sensors not zeroed at the equilibrium. The errors "
+        "never compare 0 Hz and report the offsets either way (errors.*.offsets).")
 
     @model_validator(mode="after")
     def _band_increasing(self) -> IdentificationRequest:

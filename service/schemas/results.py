@@ -181,6 +181,10 @@ class StudyJobResult(StoredDocument):
     revision: int = Field(description="Number of the revision computed.")
     revision_summary: RevisionSummary = Field(description="That revision.")
     history: list[HistoryRow] = Field(description="Error history, one row per revision.")
+    warnings: list[str] = Field(
+        [], description="What makes the revisions' results unusable in part, with what to "
+        "change: e.g. elements without a driving point (no coefficient is identified; give "
+        "driving_points).")
 
 
 class UnexplainedGroup(StoredDocument):

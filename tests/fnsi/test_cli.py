@@ -88,6 +88,23 @@ def test_identify_warns_of_elements_the_data_cannot_separate(records, tmp_path, 
     assert (tmp_path / "both" / "stiffness.png").read_bytes().startswith(PNG)
 
 
+def test_identify_says_once_how_to_give_a_missing_driving_point(records, tmp_path, capsys):
+    renamed = tmp_path / "shaker.npz"
+    data = Measurement.from_npz(records[0])
+    Measurement(data.u, data.y, data.fs, ("shaker",), data.output_names, data.periods,
+                data.quantity).to_npz(renamed)
+    stop = json.dumps({"kind": "clearance", "dof": "x4", "ref": "x5",
+                       "gap_negative": 0.002, "gap_positive": 0.001})
+    code, out, err = run(capsys, "identify", renamed, *IDENTIFICATION[:-2], "--element", stop,
+                         "--no-uncertainty", "-o", tmp_path / "out")
+    assert code == 0, err
+    warnings = [line for line in out.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1 and "input 'shaker' names no output" in warnings[0], out
+    assert "--driving-point INPUT,OUTPUT" in warnings[0]
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert result["warnings"] == [warnings[0].removeprefix("warning: ")]
+
+
 def test_study_create_diagnose_revise_show(records, tmp_path, capsys):
     folder = tmp_path / "study"
     code, out, err = run(capsys, "study", "create", *records, "-o", folder, *IDENTIFICATION,
@@ -123,7 +140,7 @@ def test_study_create_diagnose_revise_show(records, tmp_path, capsys):
     assert code == 2
     assert "'x9'" in err and "not an output" in err
     code, out, _ = run(capsys, "study", "show", folder)
-    assert len(out.strip().splitlines()) == 3  # header + 2 revisions: nothing lost
+    assert len(out.strip().splitlines()) == 4  # header + 2 revisions + offsets: nothing lost
 
 
 def test_study_create_refuses_records_of_different_set_ups(records, tmp_path, capsys):

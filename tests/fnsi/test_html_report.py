@@ -76,6 +76,10 @@ def test_the_identification_report_tabulates_the_result(folders, capsys):
         assert f"<td>{mode['frequency_hz']:.4g}</td>" in page
     for channel in result["errors"]["estimation"]["channels"]:
         assert f"<td>{channel['nrmse_percent']:.4g}</td>" in page
+    # the 0 Hz line left out of the comparison, named with its unit (none given here)
+    x1 = result["errors"]["estimation"]["offsets"]["outputs"][0]
+    assert "Offsets of the estimation data" in page
+    assert f"x1 {x1['offset']:.3g} output unit" in page
 
 
 def test_the_study_report_shows_revisions_diagnoses_and_failures(folders, capsys):
@@ -93,6 +97,7 @@ def test_the_study_report_shows_revisions_diagnoses_and_failures(folders, capsys
     assert "Diagnosis of revision 0" in page and html.escape(diagnosis["summary"]) in page
     assert escape(f"the model could not be simulated: {failed['failure']}") in page
     assert "<td class=\"text\">failed</td>" in page  # the history row of the failed one
+    assert "Offsets of the validation data" in page
     assert failed_share((folder / "history.png").read_bytes()) > 0.005  # drawn as failed
 
 

@@ -203,6 +203,22 @@ def test_coefficient_weights_follow_the_basis_power(cubic):
     assert mu.mean_real == pytest.approx(np.sum(normalised * mu.values.real))
 
 
+def test_elements_without_a_driving_point_give_one_warning_saying_how(cubic):
+    _, element, data = cubic
+    renamed = dataclasses.replace(data, input_names=("shaker",))
+    settings = IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
+                                      elements=(unknown(element),), uncertainty=False)
+    result = identify(renamed, settings)
+    assert not result.coefficients[0].identifiable
+    (warning,) = result.warnings
+    assert warning.startswith("no driving point found by name (input 'shaker' names no "
+                              "output)") and "--driving-point INPUT,OUTPUT" in warning
+    given = identify(renamed, dataclasses.replace(settings, driving_points=(("shaker", "a"),)))
+    assert given.warnings == () and given.coefficients[0].identifiable
+    linear = identify(renamed, dataclasses.replace(settings, elements=()))
+    assert linear.warnings == ()          # no coefficient to scale, nothing to say
+
+
 def test_progress_can_cancel(cubic):
     def cancel(fraction, message):
         raise RuntimeError("cancelled")

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from fnsi.modal import Coefficient, modal_table, nonlinear_coefficients
+from fnsi.modal import (
+    Coefficient,
+    default_driving_points,
+    missing_driving_point,
+    modal_table,
+    nonlinear_coefficients,
+)
 from fnsi.nonlinear import NonlinearElement
 from fnsi.statespace import StateSpaceModel
 
@@ -94,6 +100,29 @@ def test_coefficients_refused_without_driving_point(structure):
     (mu,) = nonlinear_coefficients(model, FREQUENCIES)
     assert mu.values is None and "driving point" in mu.reason
     assert mu.to_json()["identifiable"] is False
+
+
+@pytest.mark.parametrize(("inputs", "outputs", "why"), [
+    (("f1",), ("x1", "y1"), "input 'f1' names several outputs: x1, y1"),   # ambiguous
+    (("shaker",), ("x1", "x2"), "input 'shaker' names no output"),
+    (("u",), ("y", "z"), "input 'u' names no output"),     # u -> y only for one output
+])
+def test_a_missing_driving_point_says_why_and_how_to_give_one(inputs, outputs, why):
+    assert default_driving_points(inputs, outputs) == {}
+    message = missing_driving_point(inputs, outputs)
+    assert message.startswith(f"no driving point found by name ({why})")
+    # the three ways to give one, by their real names
+    for way in ("--driving-point INPUT,OUTPUT", '"driving_points": [["INPUT", "OUTPUT"]]',
+                'IdentificationSettings(driving_points=(("INPUT", "OUTPUT"),))'):
+        assert way in message
+
+
+def test_driving_points_found_by_unambiguous_names():
+    assert default_driving_points(("f1", "F_x2"), ("x1", "x2")) == {"f1": "x1", "F_x2": "x2"}
+    assert default_driving_points(("u",), ("y",)) == {"u": "y"}
+    assert missing_driving_point(("f1", "shaker"), ("x1", "x2")) is None   # one suffices
+    many = missing_driving_point(("force",), tuple(f"x{k}" for k in range(39)))
+    assert "x9 and 29 more" in many
 
 
 def test_explicit_driving_point_mapping(structure):

@@ -6,6 +6,7 @@ spring at x3; revision 0 is linear, revision 1 adds the cubic spring.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -75,7 +76,9 @@ def test_history_table_and_chart(study):
     assert rows[1]["elements"] == ["cubic spring x3"]
     assert rows[1]["nrmse_percent"] < rows[0]["nrmse_percent"] / 10
     table = study.history_table()
-    assert "add cubic spring x3" in table and len(table.splitlines()) == 3
+    assert "add cubic spring x3" in table and len(table.splitlines()) == 4
+    # the last line names the offsets removed from the validation data (tiny here)
+    assert table.splitlines()[-1].startswith("offsets of the validation data")
     figures = study_figures(study, 0)
     assert set(figures) == {"history.png", "revision-0-comparison.png",
                             "revision-0-residual-spectra.png", "revision-0-residual-map.png"}
@@ -220,3 +223,15 @@ def test_revisions_give_their_errors_modes_and_coefficients_with_standard_deviat
                                                  modal["frequency_hz"], strict=True))
     (coefficient,) = document["coefficients"]
     assert 0 < coefficient["mean_real_std"] < 0.1 * abs(coefficient["mean_real"])
+
+
+def test_a_study_without_driving_point_warns_once_how_to_give_it(data):
+    renamed = [dataclasses.replace(m, input_names=("shaker",)) for m in data]
+    settings = dataclasses.replace(SETTINGS, driving_points=(), uncertainty=False)
+    study = Study(*renamed, settings)
+    assert study.warnings == []                  # no element yet: nothing to scale
+    study = Study.create(*renamed, dataclasses.replace(settings, elements=(CUBIC,)))
+    (warning,) = study.warnings
+    assert "input 'shaker' names no output" in warning and "driving_points" in warning
+    assert study.history_table().splitlines()[-2] == f"warning: {warning}"
+    assert study.to_json()["warnings"] == [warning]

@@ -81,6 +81,21 @@ def test_frequency_warping_reaches_the_library(stack, datasets):
     np.testing.assert_allclose(coefficient["mean_real"], TRUE_CUBIC, rtol=0.03)
 
 
+def test_offsets_are_reported_and_removed_on_request(stack, datasets, identified):
+    removed = _identify(stack, datasets, remove_offsets=True)["result"]
+    assert removed["settings"]["remove_offsets"] is True
+    for result, flag in ((identified["result"], False), (removed, True)):
+        assert result["offsets"]["removed"] is flag
+        for kind in ("estimation", "validation"):
+            offsets = result["errors"][kind]["offsets"]
+            assert {"inputs", "outputs"} <= set(offsets)
+            assert all("unit" in c and "offset" in c for c in offsets["outputs"])
+    # simulated sensors read the true motion: its mean is tiny, so removing it changes
+    # the cubic by far less than the 3 % the truth test allows
+    np.testing.assert_allclose(removed["coefficients"][0]["mean_real"],
+                               identified["result"]["coefficients"][0]["mean_real"], rtol=0.01)
+
+
 def test_identification_result_matches_the_simulated_truth(identified):
     result = identified["result"]
     assert result["order"] == 4
