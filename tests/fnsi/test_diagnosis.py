@@ -34,6 +34,7 @@ from fnsi.diagnosis import (
     Effect,
     Location,
     LocationScore,
+    _simplest_clearance,
     _summary,
     added_parameters,
     candidate_locations,
@@ -383,6 +384,21 @@ def test_parameters_counted_for_the_claim_penalty():
     cubic = NonlinearElement("polynomial", "x1", exponent=3.0)
     assert added_parameters(Effect.CUBIC_STIFFNESS, cubic) == 1
     assert added_parameters(Effect.MISSING_MODE, None) == 3
+
+
+def test_an_asymmetric_clearance_must_pay_for_its_second_gap():
+    # (fixed-pole cost, g-, g+): symmetric, one-sided on either side, asymmetric
+    def options(asymmetric_cost):
+        return [(100.0, 1.0, 1.0), (60.0, math.inf, 1.0), (90.0, 1.0, math.inf),
+                (asymmetric_cost, 1.2, 1.0)]
+
+    where = Location("x1", "x2")
+    # one gap more must lower the residual by 1 - 0.9^2 = 19 % (the claim rule's penalty)
+    assert _simplest_clearance(where, options(0.82 * 60.0)) == (60.0, math.inf, 1.0)
+    assert _simplest_clearance(where, options(0.80 * 60.0)) == (48.0, 1.2, 1.0)
+    # among forms with as many parameters the lower residual wins
+    assert _simplest_clearance(where, [*options(80.0)[:1], (99.0, 1.0, math.inf)]) == (
+        99.0, 1.0, math.inf)
 
 
 def test_softening_and_asymmetry_are_plausible_either_sign():
