@@ -1078,8 +1078,8 @@ class _Judge:
 def _reference(study: Study, revision: int, judge: _Judge, notes: list[str]) -> _Judge:
     """What the candidates of a revision are judged against.
 
-    When the revision is FNSI's model and misses the validation data by more than the
-    study's refinement threshold (:meth:`fnsi.study.Study.misses_floor`), FNSI's
+    When the revision is FNSI's model, runs, and misses the validation data by more than
+    the study's refinement threshold (:meth:`fnsi.study.Study.misses_floor`), FNSI's
     estimate is not what the loop would keep: a revision with an element is then
     refined by its simulation error, and FNSI's coefficients of an element identified
     from noisy or integrated outputs can make the model worse than without it. Every
@@ -1089,7 +1089,10 @@ def _reference(study: Study, revision: int, judge: _Judge, notes: list[str]) -> 
     more mode is judged against the revision itself: a linear revision stays FNSI's.
     """
     base = study.revisions[revision]
-    if base.refined or study.settings.refine or not study.misses_floor(base.nrmse_percent):
+    error = base.nrmse_percent
+    # as the study refines only a model it could simulate (Study._refined_if_needed)
+    if (base.refined or study.settings.refine or not math.isfinite(error)
+            or not study.misses_floor(error)):
         return judge
     judge = replace(judge, refine_trials=True)
     try:
