@@ -16,9 +16,9 @@ candidate missing effects in three stages, from cheap to expensive:
    the locations the screening cannot tell apart (:func:`kind_locations`), with the same
    fixed-pole fit, each with a linear spring at its location (the starting model
    absorbed part of the effect as linear stiffness): clearance (gaps searched;
-   symmetric, asymmetric or one-sided), cubic stiffness (hardening or softening),
-   quadratic stiffness (asymmetry), Coulomb friction (smoothing width searched) and
-   quadratic damping.
+   symmetric, one-sided or, when its extra gap pays for itself, asymmetric), cubic
+   stiffness (hardening or softening), quadratic stiffness (asymmetry), Coulomb friction
+   (smoothing width searched) and quadratic damping.
 3. **Validate** the best few by what the user cares about: FNSI identification of the
    revision with the candidate added, simulation with the validation input and the
    validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
@@ -32,10 +32,16 @@ lowers the RMS error above the noise floor by 10 %, and its coefficient is
 physically plausible (a stop with negative contact stiffness, or friction or damping that
 feeds energy in, lowers the error for another reason: :func:`implausibility`). Claimed
 candidates come first, the simpler winning unless the richer explains clearly more. When
-none is claimed the summary gives the rule, the numbers that stopped the best candidate,
-and, while the error stays above three times the floor, what remains unexplained and
-where (:func:`fnsi.claim.unexplained`); it says that nothing is missing only near the
-floor. Elements the revision already holds (same law at the same location) are never
+none is claimed alone, two that each help significantly are validated together, the
+second chosen with the poles held (:func:`claim_pair`: of two missing effects, each of
+which the revision's linear part absorbed in part, either may be too little alone).
+When FNSI's revision misses the floor by the study's refinement threshold, element
+candidates are judged as the study would keep them, refined by their simulation error,
+against the revision refined the same way (:func:`_reference`). When none is claimed
+the summary gives the rule, the numbers that stopped the best candidate, and, while the
+error stays above three times the floor, what remains unexplained and where
+(:func:`fnsi.claim.unexplained`); it says that nothing is missing only near the floor.
+Elements the revision already holds (same law at the same location) are never
 proposed.
 """
 
@@ -62,6 +68,7 @@ from fnsi.claim import (
     critical_z,
     improvement_z,
     penalised_excess,
+    required_fraction,
     unexplained,
 )
 from fnsi.distortion import DistortionAnalysis, analyse_distortion
@@ -298,6 +305,11 @@ class Candidate:
     repairs : tuple of str
         What was changed so that its model could be simulated (:meth:`fnsi.study.Study.
         evaluate`).
+    partner : Location or None
+        Where a second effect acts that this one is claimed together with
+        (:func:`claim_pair`): ``claim`` then tests the two added together, and the
+        partner is found by the next diagnosis once this one is added. None when it is
+        claimed, or not, alone.
     """
 
     effect: Effect
@@ -315,6 +327,7 @@ class Candidate:
     concern: str | None = None
     claim: ClaimTest | None = None
     repairs: tuple[str, ...] = ()
+    partner: Location | None = None
 
     @property
     def convincing(self) -> bool:
@@ -344,6 +357,7 @@ class Candidate:
             "concern": self.concern,
             "claim": None if self.claim is None else self.claim.to_json(),
             "repairs": list(self.repairs),
+            "partner": None if self.partner is None else self.partner.to_json(),
         }
 
 
@@ -596,7 +610,9 @@ def _search_gap(cost: Callable[[float], float], high: float) -> tuple[float, flo
 
 
 def _clearance_proposal(problem: ScreeningProblem, score: LocationScore) -> Proposal:
-    """Best clearance at a location: symmetric, then each side refined on its own."""
+    """Best clearance at a location: symmetric, asymmetric (each side refined, then both
+    together), one-sided on either side (each gap searched on its own); the simplest
+    form that fits (:func:`_simplest_clearance`)."""
     location = score.location
     low, high = score.displacement_range
     reach = min(-low, high)
@@ -616,22 +632,40 @@ def _clearance_proposal(problem: ScreeningProblem, score: LocationScore) -> Prop
                                  "maxiter": 80})
     gn, gp = (float(g) for g in np.clip(polished.x, smallest, None))
     asym_cost = float(polished.fun)
-    one_sided = {
-        "positive": _clearance_cost(problem, location, math.inf, gp),
-        "negative": _clearance_cost(problem, location, gn, math.inf),
-    }
-    options = [(sym_cost, gap, gap), (asym_cost, gn, gp),
-               (one_sided["positive"], math.inf, gp), (one_sided["negative"], gn, math.inf)]
-    explained = problem.base_cost - sym_cost
-    # Prefer the simpler symmetric form unless the other explains clearly more (2 %).
-    best = min(options, key=lambda o: o[0])
-    if best[0] > sym_cost - 0.02 * explained:
-        best = options[0]
-    cost, gn_best, gp_best = best
+    # A one-sided stop has its own best gap: the asymmetric fit's gap of that side is
+    # biased by the other side's contact, which a stop does not have.
+    stop_gp, stop_positive = _search_gap(
+        lambda g: _clearance_cost(problem, location, math.inf, g), high)
+    stop_gn, stop_negative = _search_gap(
+        lambda g: _clearance_cost(problem, location, g, math.inf), -low)
+    options = [(sym_cost, gap, gap), (stop_positive, math.inf, stop_gp),
+               (stop_negative, stop_gn, math.inf), (asym_cost, gn, gp)]
+    cost, gn_best, gp_best = _simplest_clearance(location, options)
     shape = ({"spline_flat": _flat_zone(score.curve_x, score.curve_shape)} if score.refined
              else {})
     return Proposal(Effect.CLEARANCE, location, _clearance(location, gn_best, gp_best),
                     problem.reduction(cost), shape)
+
+
+def _simplest_clearance(location: Location, options: Sequence[tuple[float, float, float]],
+                        ) -> tuple[float, float, float]:
+    """The clearance form to propose among (cost, g-, g+) options.
+
+    The lowest cost among the forms with the fewest parameters (:func:`added_parameters`:
+    a symmetric clearance or a one-sided stop 2, an asymmetric clearance 3); a richer
+    form replaces it only when its fixed-pole residual is lower by what the claim rule
+    asks of its extra parameters (:func:`fnsi.claim.required_fraction`): a contact at
+    the very end of the motion on the other side of a stop fits a little of anything.
+    """
+    def parameters(option: tuple[float, float, float]) -> int:
+        return added_parameters(Effect.CLEARANCE, _clearance(location, *option[1:]))
+
+    chosen = None
+    for option in sorted(options, key=lambda o: (parameters(o), o[0])):
+        if chosen is None or option[0] <= (1.0 - required_fraction(
+                parameters(option) - parameters(chosen))) * chosen[0]:
+            chosen = option
+    return chosen
 
 
 def _single_proposal(problem: ScreeningProblem, effect: Effect, location: Location,
@@ -1019,6 +1053,19 @@ class _Judge:
     base_simulated: np.ndarray | None
     candidates: int
     distortion: DistortionAnalysis | None = None
+    refine_trials: bool = False
+
+    def evaluate(self, study: Study, revision: int, elements: Sequence[NonlinearElement],
+                 order: int) -> Evaluation:
+        """A trial model of the revision: identified as the revision was (refined when
+        it is), or, with ``refine_trials``, the better of FNSI's model and its refinement
+        by the simulation error (:func:`_reference`)."""
+        refined = study.revisions[revision].refined
+        evaluation = study.evaluate(elements, order, uncertainty=False,
+                                    refine=refined or None)
+        if self.refine_trials and not refined:
+            return study.better_refined(evaluation, uncertainty=False)
+        return evaluation
 
     def test(self, evaluation: Evaluation, parameters: int) -> ClaimTest:
         z = math.nan
@@ -1028,13 +1075,46 @@ class _Judge:
                           self.candidates)
 
 
+def _reference(study: Study, revision: int, judge: _Judge, notes: list[str]) -> _Judge:
+    """What the candidates of a revision are judged against.
+
+    When the revision is FNSI's model, runs, and misses the validation data by more than
+    the study's refinement threshold (:meth:`fnsi.study.Study.misses_floor`), FNSI's
+    estimate is not what the loop would keep: a revision with an element is then
+    refined by its simulation error, and FNSI's coefficients of an element identified
+    from noisy or integrated outputs can make the model worse than without it. Every
+    element's trial model is then the better of FNSI's and its refinement, and so is the
+    reference, the revision refined the same way, so that a candidate is not credited
+    for the linear part that the refinement alone corrects (``notes`` says so). One
+    more mode is judged against the revision itself: a linear revision stays FNSI's.
+    """
+    base = study.revisions[revision]
+    error = base.nrmse_percent
+    # as the study refines only a model it could simulate (Study._refined_if_needed)
+    if (base.refined or study.settings.refine or not math.isfinite(error)
+            or not study.misses_floor(error)):
+        return judge
+    judge = replace(judge, refine_trials=True)
+    try:
+        reference = judge.evaluate(study, revision, base.elements, base.identified_order)
+    except ValueError as error:   # the revision itself was identified: not expected
+        notes.append(f"the revision could not be refined as a reference: {error}")
+        return judge
+    if not reference.nrmse_percent < base.nrmse_percent:
+        return judge
+    notes.append(f"element candidates are judged by their models refined by the simulation "
+                 f"error, against the revision refined the same way ({base.nrmse_percent:.3g} % -> "
+                 f"{reference.nrmse_percent:.3g} %)")
+    return replace(judge, before=reference.nrmse_percent, base_simulated=reference.simulated)
+
+
 def _validate(study: Study, revision: int, proposal: Proposal, judge: _Judge,
               score: LocationScore | None) -> Candidate:
     """Stage 3 for one element proposal."""
     base = study.revisions[revision]
     try:
-        evaluation = study.evaluate((*base.elements, proposal.element), base.identified_order,
-                                    uncertainty=False, refine=base.refined or None)
+        evaluation = judge.evaluate(study, revision, (*base.elements, proposal.element),
+                                    base.identified_order)
     except ValueError as error:   # e.g. too many basis functions for the data
         return _unidentified(proposal.effect, proposal.location, proposal.element,
                              base.identified_order, proposal.reduction, error)
@@ -1061,8 +1141,7 @@ def _validate_mode(study: Study, revision: int, judge: _Judge) -> Candidate:
     base = study.revisions[revision]
     order = base.identified_order + 2
     try:
-        evaluation = study.evaluate(base.elements, order, uncertainty=False,
-                                    refine=base.refined or None)
+        evaluation = judge.evaluate(study, revision, base.elements, order)
     except ValueError as error:   # e.g. the order exceeds what the data allow
         return _unidentified(Effect.MISSING_MODE, None, None, order, None, error)
     after = evaluation.nrmse_percent
@@ -1095,6 +1174,76 @@ def _unexplained(study: Study, index: int) -> Unexplained | None:
     return unexplained(study.validation_spectra, base.simulated, base.excited,
                        base.errors.frequencies, study.settings.band, study.output_names,
                        base.nrmse_percent / floor)
+
+
+PAIR_TRIALS = 2
+"""Helpful candidates each validated together with its best complement (:func:`claim_pair`)."""
+
+
+def _complement(problem: ScreeningProblem, element: NonlinearElement,
+                proposals: Sequence[Proposal]) -> Proposal | None:
+    """The proposal at another location that, added to ``element`` with the poles held,
+    explains the most residual (greedy forward selection; each with its linear spring,
+    as in :func:`_fit_with_linear`)."""
+    def columns(e: NonlinearElement) -> list[np.ndarray]:
+        return [problem.linear_spectrum(e.dof, e.ref), problem.basis_spectra(e)]
+
+    where = frozenset((element.dof, element.ref))
+    own = columns(element)
+    others = [p for p in proposals if frozenset((p.location.dof, p.location.ref)) != where]
+    if not others:
+        return None
+    return min(others, key=lambda p: problem.fit(np.concatenate(
+        own + columns(p.element), axis=2))[0])
+
+
+def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], judge: _Judge,
+               problem: ScreeningProblem, proposals: Sequence[Proposal]) -> list[Candidate]:
+    """Two effects that each help but neither enough alone: validated together.
+
+    With two missing effects the revision's linear part absorbs part of both, and either
+    added alone removes too little of the error for its parameters while both together
+    remove most of it. When no candidate is convincing, each of the :data:`PAIR_TRIALS`
+    plausible candidates whose improvement is significant and that validate best is
+    identified together with the proposal at another location that complements it best
+    with the poles held (:func:`_complement`). Of the pairs whose model passes the
+    claim rule (the parameters of both, one more test per pair for the family-wise
+    level) with both coefficients plausible, the one with the lowest validation error
+    makes its candidate claimed, the other location its ``partner`` (the next diagnosis, with it
+    added, finds the partner). Otherwise the candidates are returned unchanged.
+    """
+    helpful = sorted((c for c in candidates if c.element is not None and c.claim is not None
+                      and c.claim.significant and c.concern is None),
+                     key=lambda c: c.validation_nrmse_percent)[:PAIR_TRIALS]
+    base = study.revisions[revision]
+    tests = replace(judge, candidates=judge.candidates + len(helpful))
+    passed = []
+    for first in helpful:
+        alone = replace(first.element, coefficients=None)
+        other = _complement(problem, alone, proposals)
+        if other is None:
+            continue
+        try:
+            evaluation = judge.evaluate(study, revision, (*base.elements, alone, other.element),
+                                        base.identified_order)
+        except ValueError:   # e.g. too many basis functions for the data
+            continue
+        pair = tests.test(evaluation, first.parameters
+                          + added_parameters(other.effect, other.element))
+        identified = [_coefficient_quality(evaluation, e)[0] for e in (alone, other.element)]
+        if pair.passed and not any(implausibility(effect, e) for effect, e in
+                                   zip((first.effect, other.effect), identified, strict=True)):
+            passed.append((pair, first, other))
+    if not passed:
+        return list(candidates)
+    pair, first, other = min(passed, key=lambda item: item[0].after)
+    words = (f"; claimed together with {other.effect.value.replace('_', ' ')} "
+             f"{other.location.phrase}: with both the validation error falls from "
+             f"{pair.before:.3g} % to {pair.after:.3g} %{_verdict_words(pair)}; add this one "
+             f"and diagnose again for the other")
+    claimed = replace(first, beats_noise_floor=True, claim=pair, partner=other.location,
+                      explanation=first.explanation + words)
+    return [claimed if c is first else c for c in candidates]
 
 
 def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | None = None,
@@ -1173,17 +1322,24 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
         notes.append(f"nonlinear distortion of the estimation data: {distortion.verdict}")
     judge = _Judge(before, floor, study.validation_spectra, base.simulated,
                    len(chosen) + int(settings.include_missing_mode), distortion)
+    # elements are judged as the study would keep them once added (refined when FNSI's
+    # model misses the floor); one more mode stays FNSI's, as a linear revision does
+    elements_judge = _reference(study, index, judge, notes)
     by_location = {s.location: s for s in scores}
     candidates = []
     for count, proposal in enumerate(chosen):
         report(0.4 + 0.6 * (settings.curve_locations + count) / steps,
                f"validating {proposal.effect} {proposal.location.phrase}")
-        candidates.append(_validate(study, index, proposal, judge,
+        candidates.append(_validate(study, index, proposal, elements_judge,
                                     by_location.get(proposal.location)))
     if settings.include_missing_mode:
         report(0.4 + 0.6 * (steps - 1) / steps, "validating one more linear mode")
         candidates.append(_validate_mode(study, index, judge))
     candidates = rank_candidates(candidates)
+    if candidates and not candidates[0].convincing:
+        report(0.99, "validating the best two effects together")
+        candidates = rank_candidates(claim_pair(study, index, candidates, elements_judge,
+                                                 problem, proposals))
     timings["validation_s"] = time.perf_counter() - start
     left = _unexplained(study, index)
     report(1.0, "diagnosis done")

@@ -559,12 +559,26 @@ class Study:
         revision refines its candidates too (:attr:`Revision.refined`). A linear revision
         stays FNSI's: the diagnosis screens with its poles.
         """
-        floor = self.noise_floor_percent
         error = evaluation.nrmse_percent
-        if (self.settings.refine or not evaluation.elements or not math.isfinite(floor)
-                or not math.isfinite(error) or error <= AUTO_REFINE_FACTOR * floor):
+        if (self.settings.refine or not evaluation.elements or not math.isfinite(error)
+                or not self.misses_floor(error)):
             return evaluation
-        refined = self.evaluate(evaluation.elements, evaluation.order, progress, refine=True)
+        return self.better_refined(evaluation, progress)
+
+    def misses_floor(self, nrmse: float) -> bool:
+        """A validation NRMSE [%] beyond :data:`AUTO_REFINE_FACTOR` times the noise floor
+        (False without a floor): FNSI's model is then worth refining."""
+        floor = self.noise_floor_percent
+        return math.isfinite(floor) and nrmse > AUTO_REFINE_FACTOR * floor
+
+    def better_refined(self, evaluation: Evaluation, progress: Progress | None = None, *,
+                       uncertainty: bool = True) -> Evaluation:
+        """``evaluation`` (FNSI's model) or the same model refined by its simulation
+        error, whichever validates better; the refinement is named in its repairs
+        (``uncertainty`` as in :meth:`evaluate`)."""
+        error, floor = evaluation.nrmse_percent, self.noise_floor_percent
+        refined = self.evaluate(evaluation.elements, evaluation.order, progress, refine=True,
+                                uncertainty=uncertainty)
         if not refined.nrmse_percent < error:
             return evaluation
         return replace(refined, repairs=(*refined.repairs, (

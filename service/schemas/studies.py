@@ -171,6 +171,11 @@ class Candidate(BaseModel):
         "validated.")
     repairs: list[str] = Field(default_factory=list, description=(
         "What was changed so that its model could be simulated."))
+    partner: Location | None = Field(
+        None, description="Where a second effect acts that this candidate is claimed "
+        "together with (neither was worth its parameters alone; claim then tests both "
+        "added together): add this one and diagnose again to find the other. Null when "
+        "judged alone.")
 
 
 class ClaimTestSummary(BaseModel):

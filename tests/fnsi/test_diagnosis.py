@@ -34,6 +34,9 @@ from fnsi.diagnosis import (
     Effect,
     Location,
     LocationScore,
+    Proposal,
+    _complement,
+    _simplest_clearance,
     _summary,
     added_parameters,
     candidate_locations,
@@ -44,6 +47,7 @@ from fnsi.diagnosis import (
 from fnsi.excitation import Excitation, periodic_noise
 from fnsi.identification import IdentificationSettings
 from fnsi.nonlinear import NonlinearElement
+from fnsi.screening import ScreeningProblem
 from fnsi.structure import StructuralModel
 from fnsi.study import Study
 
@@ -118,6 +122,26 @@ def test_cubic_spring_to_ground_ranks_first_and_is_hardening(cubic_case):
     assert_fixed(study)
 
 
+def test_elements_are_judged_refined_against_the_refined_revision(cubic_case):
+    study, diagnosis = cubic_case
+    revision = study.revisions[0]
+    assert revision.nrmse_percent > 3.0 * revision.noise_floor_percent  # FNSI's, far off
+    # the reference: the revision or its refinement, whichever validates better
+    refined = study.evaluate([], revision.identified_order, uncertainty=False, refine=True)
+    reference = min(refined.nrmse_percent, revision.nrmse_percent)
+    elements = [c for c in diagnosis.candidates if c.element is not None]
+    assert all(c.claim.before == reference for c in elements)
+    # each element's model: FNSI's or its refinement, whichever validates better
+    top = diagnosis.candidates[0]
+    trial = (dataclasses.replace(top.element, coefficients=None),)
+    fnsi, refined_top = (study.evaluate(trial, top.order, uncertainty=False, refine=refine)
+                         for refine in (False, True))
+    assert top.validation_nrmse_percent == min(fnsi.nrmse_percent, refined_top.nrmse_percent)
+    # one more mode is a linear revision, which stays FNSI's: judged against the revision
+    mode = next(c for c in diagnosis.candidates if c.effect is Effect.MISSING_MODE)
+    assert mode.claim.before == revision.nrmse_percent
+
+
 def test_coulomb_friction_between_two_dofs():
     study = linear_study(NonlinearElement("coulomb_friction", "x2", "x3", width=0.01,
                                           coefficients=(3.0,)))
@@ -170,6 +194,27 @@ def test_two_simultaneous_effects_found_in_two_rounds():
     assert [row["number"] for row in history] == [0, 1, 2]
     assert history[0]["nrmse_percent"] > history[1]["nrmse_percent"] > history[2][
         "nrmse_percent"]
+
+
+def test_the_second_effect_of_a_pair_is_the_best_complement_with_the_poles_held():
+    study = linear_study(
+        NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(2e8,)),
+        NonlinearElement("quadratic_damping", "x5", coefficients=(60.0,)))
+    base = study.revisions[0]
+    problem = ScreeningProblem(study.estimation, base.model, BAND, SETTINGS.discard_periods)
+    cubic = NonlinearElement("polynomial", "x3", exponent=3.0)
+    proposals = [Proposal(effect, Location(dof, ref), element, 0.0) for effect, dof, ref,
+                 element in [
+                     (Effect.CUBIC_STIFFNESS, "x4", None,
+                      NonlinearElement("polynomial", "x4", exponent=3.0)),
+                     (Effect.QUADRATIC_DAMPING, "x4", "x5",
+                      NonlinearElement("quadratic_damping", "x4", "x5")),
+                     (Effect.QUADRATIC_DAMPING, "x5", None,
+                      NonlinearElement("quadratic_damping", "x5")),
+                     (Effect.QUADRATIC_DAMPING, "x3", None,   # at the first's location
+                      NonlinearElement("quadratic_damping", "x3"))]]
+    chosen = _complement(problem, cubic, proposals)
+    assert (chosen.effect, chosen.location) == (Effect.QUADRATIC_DAMPING, Location("x5"))
 
 
 def test_linear_structure_raises_no_false_alarm():
@@ -383,6 +428,21 @@ def test_parameters_counted_for_the_claim_penalty():
     cubic = NonlinearElement("polynomial", "x1", exponent=3.0)
     assert added_parameters(Effect.CUBIC_STIFFNESS, cubic) == 1
     assert added_parameters(Effect.MISSING_MODE, None) == 3
+
+
+def test_an_asymmetric_clearance_must_pay_for_its_second_gap():
+    # (fixed-pole cost, g-, g+): symmetric, one-sided on either side, asymmetric
+    def options(asymmetric_cost):
+        return [(100.0, 1.0, 1.0), (60.0, math.inf, 1.0), (90.0, 1.0, math.inf),
+                (asymmetric_cost, 1.2, 1.0)]
+
+    where = Location("x1", "x2")
+    # one gap more must lower the residual by 1 - 0.9^2 = 19 % (the claim rule's penalty)
+    assert _simplest_clearance(where, options(0.82 * 60.0)) == (60.0, math.inf, 1.0)
+    assert _simplest_clearance(where, options(0.80 * 60.0)) == (48.0, 1.2, 1.0)
+    # among forms with as many parameters the lower residual wins
+    assert _simplest_clearance(where, [*options(80.0)[:1], (99.0, 1.0, math.inf)]) == (
+        99.0, 1.0, math.inf)
 
 
 def test_softening_and_asymmetry_are_plausible_either_sign():
