@@ -70,6 +70,7 @@ from fnsi.spectra import (
 )
 from fnsi.stabilisation import (
     StabilisationDiagram,
+    inner_band,
     modal_contributions,
     reflect_unstable_poles,
     stabilisation_diagram,
@@ -599,6 +600,15 @@ def _choose_order(settings: IdentificationSettings,
     if diagram is None or diagram.auto_order is None:
         counts = [] if diagram is None else diagram.stable_counts().tolist()
         confirmed = [] if diagram is None else diagram.confirmed_counts().tolist()
+        if any(confirmed):
+            low, high = inner_band(settings.band)
+            raise ValueError(
+                f"no order holds a mode in the band: the stabilisation diagram confirms poles "
+                f"in it (per order: {confirmed}), but none between {low:.4g} and {high:.4g} Hz "
+                f"carries {100 * diagram.min_contribution:g} % of the measured response, so "
+                "the band may hold no resonance, only the tails of modes outside it; widen "
+                "the band to include the resonances, or give the order explicitly to get "
+                "every pole of that order")
         raise ValueError("no model order stabilises in the band (stable poles per order: "
                          f"{counts}; confirmed over the following orders: {confirmed}); give "
                          "the order explicitly or raise max_order")

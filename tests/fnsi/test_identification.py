@@ -322,3 +322,16 @@ def test_smallsat_identification_is_fixed_by_the_data_not_by_rounding(single):
         assert zeta == pytest.approx(truth.modal.damping_ratios[k], rel=0.03)
 
 
+
+
+def test_a_band_between_the_modes_is_refused_with_what_to_change(chain, simulate_record):
+    # modes at 12.18, 22.51 and 29.41 Hz (chain_model): 14-20 Hz holds only their tails,
+    # which the diagram confirms as poles carrying no share of the measured response
+    data = simulate_record(chain(3), ["a"], noise=0.005, band=(3.0, 45.0))
+    with pytest.raises(ValueError, match="no order holds a mode in the band") as error:
+        identify(data, IdentificationSettings(band=(14.0, 20.0)))
+    assert "widen the band" in str(error.value)
+    # the same record in a band holding the three modes gives them
+    result = identify(data, IdentificationSettings(band=(5.0, 40.0)))
+    np.testing.assert_allclose(np.sort(result.modal.frequencies), [12.18, 22.51, 29.41],
+                               rtol=5e-3)  # 0.5 % noise on a 4-period record
