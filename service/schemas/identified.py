@@ -1,5 +1,6 @@
 """Schemas of what an identification says about its model, shared by identification
-results and study revisions: coefficients, errors per channel, refinement, separability.
+results and study revisions: coefficients, errors per channel, offsets, refinement,
+separability.
 
 They describe JSON documents the workers stored (:class:`StoredDocument`): documented
 fields are typed, every other key passes through unchanged.
@@ -64,6 +65,30 @@ class ChannelError(StoredDocument):
         examples=[2.7])
 
 
+class ChannelOffset(StoredDocument):
+    """Mean of one channel over the kept periods: its sensor offset (fnsi.offsets)."""
+
+    channel: str = Field(description="Channel name.", examples=["x1"])
+    offset: float | None = Field(description="Mean over the realisations, in unit; null "
+                                 "when not finite.", examples=[0.0012])
+    per_realisation: list[float | None] = Field(description="Mean of each realisation, in "
+                                                "unit.", examples=[[0.0011, 0.0013]])
+    unit: str = Field(description="Unit of the channel (fnsi.units; 'input unit', 'output "
+                      "unit' where the dataset gives none).", examples=["mm"])
+
+
+class ChannelOffsets(StoredDocument):
+    """Sensor offsets of a dataset's channels (fnsi.offsets). 0 Hz is never compared:
+    every error leaves them out, and remove_offsets also removes them before the
+    estimation."""
+
+    inputs: list[ChannelOffset] = Field(description="One per input channel.")
+    outputs: list[ChannelOffset] = Field(description="One per output channel.")
+    removed: bool | None = Field(None, description="Removed before the estimation "
+                                 "(remove_offsets); present on the estimation data's "
+                                 "offsets of an identification.")
+
+
 class ErrorSummary(StoredDocument):
     """Errors of the model simulated with the measured input, or why it could not be."""
 
@@ -78,6 +103,8 @@ class ErrorSummary(StoredDocument):
     overall_relative_to_noise_floor_db: float | None = Field(
         None, description="Overall NRMSE over the noise floor [dB] (study revisions).")
     failure: str | None = Field(None, description="Why the model could not be simulated.")
+    offsets: ChannelOffsets | None = Field(None, description="Offsets of the compared "
+                                           "data, left out of the errors.")
 
 
 class RefinementSummary(StoredDocument):

@@ -15,6 +15,7 @@ from pydantic import Field
 
 from service.schemas.identifications import NonlinearElementSpec
 from service.schemas.identified import (
+    ChannelOffsets,
     ElementSeparability,
     ErrorSummary,
     IdentifiedCoefficient,
@@ -93,10 +94,6 @@ class IdentificationErrors(StoredDocument):
                                             "(present when one was given).")
 
 
-
-
-
-
 class UsedSettings(StoredDocument):
     """The settings an identification ran with (fnsi.identification.IdentificationSettings):
     the request's, "auto" left as asked, spline knots resolved."""
@@ -117,6 +114,8 @@ class UsedSettings(StoredDocument):
     refine: bool = Field(description="Output-error refinement asked.")
     uncertainty: bool = Field(True, description="Standard deviations asked (the *_std "
                               "fields).")
+    remove_offsets: bool = Field(False, description="Sensor offsets removed before the "
+                                 "estimation.")
 
 
 class UncertaintySummary(StoredDocument):
@@ -166,6 +165,9 @@ class IdentificationJobResult(StoredDocument):
     uncertainty: UncertaintySummary | None = Field(
         None, description="How the *_std fields beside the modes and coefficients were "
         "computed; null when uncertainty was off in the settings.")
+    offsets: ChannelOffsets | None = Field(
+        None, description="Offsets of the estimation data, with whether they were removed "
+        "before the estimation.")
 
 
 class RevisionSummary(StoredDocument, RevisionRecord):

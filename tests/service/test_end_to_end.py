@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from fnsi.statespace import StateSpaceModel
+from service.schemas.results import IdentificationJobResult
 from tests.service.servers import wait_for_job, wait_for_progress
 from tests.service.test_simulations import REQUEST as MODEL_SIMULATION
 
@@ -90,6 +91,10 @@ def test_offsets_are_reported_and_removed_on_request(stack, datasets, identified
             offsets = result["errors"][kind]["offsets"]
             assert {"inputs", "outputs"} <= set(offsets)
             assert all("unit" in c and "offset" in c for c in offsets["outputs"])
+    # the OpenAPI schema types them: the documented model reads every field back
+    typed = IdentificationJobResult.model_validate(removed)
+    assert typed.offsets.removed is True and typed.settings.remove_offsets is True
+    assert [c.channel for c in typed.errors.validation.offsets.outputs] == ["x1", "x2"]
     # simulated sensors read the true motion: its mean is tiny, so removing it changes
     # the cubic by far less than the 3 % the truth test allows
     np.testing.assert_allclose(removed["coefficients"][0]["mean_real"],
