@@ -527,28 +527,29 @@ def choose_order(poles: Sequence[OrderPoles], band: tuple[float, float],
     def count(p: OrderPoles) -> int:
         return int(np.sum(physical(p)))
 
-    def best(pool: list[OrderPoles], floor: int = 1) -> tuple[int, int] | None:
-        """(count, order) of the lowest order with the most physical poles (>= floor)."""
+    def best(pool: list[OrderPoles]) -> tuple[int, int] | None:
+        """(count, order) of the lowest order with the most physical poles (at least 1)."""
         found: tuple[int, int] | None = None
-        ranked = sorted((p for p in pool if bound(p) >= floor), key=lambda p: (-bound(p), p.order))
+        ranked = sorted((p for p in pool if bound(p) >= 1), key=lambda p: (-bound(p), p.order))
         for p in ranked:
             if found is not None and (bound(p), -p.order) <= (found[0], -found[1]):
                 break
             better = found is None or (count(p), -p.order) > (found[0], -found[1])
-            if count(p) >= floor and better:
+            if count(p) >= 1 and better:
                 found = (count(p), p.order)
         return found
 
     overall = best(list(poles))
     if overall is None:
         return None
-    pool = [p for p in poles if p.simulable]
-    if best(pool, floor=overall[0]) is None:
-        pool = list(poles)
-    holding = [p for p in pool if bound(p) >= overall[0] and count(p) >= overall[0]]
-    reference = holding[-1]
+
+    def holding(pool: Sequence[OrderPoles]) -> list[OrderPoles]:
+        return [p for p in pool if bound(p) >= overall[0] and count(p) >= overall[0]]
+
+    candidates = holding([p for p in poles if p.simulable]) or holding(poles)
+    reference = candidates[-1]
     tracking = StabilisationTolerances() if tolerances is None else tolerances
-    return next(p.order for p in holding
+    return next(p.order for p in candidates
                 if converged(p.modes.subset(physical(p)),
                              reference.modes.subset(physical(reference)), tracking))
 
