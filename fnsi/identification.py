@@ -693,7 +693,8 @@ def _instability(model: StateSpaceModel, diagram: StabilisationDiagram | None
 
 def identify(measurement: Measurement, settings: IdentificationSettings,
              progress: Progress | None = None, *,
-             reflect_unstable: bool = False) -> IdentificationResult:
+             reflect_unstable: bool = False,
+             refine_iterations: int | None = None) -> IdentificationResult:
     """Identify the underlying linear modes and the nonlinear coefficients by FNSI.
 
     Parameters
@@ -708,6 +709,10 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         Reflect unstable poles inside the unit circle (B, D fitted again, with a warning)
         at an explicit order too, as the automatic order always does: the repair of a
         model that must be simulated (:meth:`fnsi.study.Study.evaluate`).
+    refine_iterations : int, optional
+        Most accepted steps of the refinement (``settings.refine``); default that of
+        :func:`fnsi.refinement.refine`. A trial model judged against others needs fewer
+        (:meth:`fnsi.study.Study.better_refined`).
 
     Returns
     -------
@@ -761,8 +766,9 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     if not settings.refine:
         return result
     try:
+        steps = {} if refine_iterations is None else {"max_iterations": refine_iterations}
         refinement = refine(result.model, data, discard_periods=settings.discard_periods,
-                            band_high=settings.band[1],
+                            band_high=settings.band[1], **steps,
                             progress=None if progress is None else
                             lambda f, m: progress(0.9 + 0.1 * f, m))
     except ValueError as error:    # FNSI's model stands; the result says why

@@ -491,7 +491,8 @@ class Study:
     # -- revisions -------------------------------------------------------------------------
     def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
                  progress: Progress | None = None, *, uncertainty: bool = True,
-                 refine: bool | None = None) -> Evaluation:
+                 refine: bool | None = None, refine_iterations: int | None = None
+                 ) -> Evaluation:
         """Identify a model on the estimation data and run it on the validation data.
 
         The study is not changed. A model that cannot be simulated is repaired before it
@@ -501,7 +502,8 @@ class Study:
         simulable is returned with ``failure`` set instead of raising. ``uncertainty``
         False skips the standard deviations of its modes and coefficients (trial models
         of the diagnosis, of which only the errors count); ``refine`` overrides the
-        study's ``settings.refine``.
+        study's ``settings.refine``, ``refine_iterations`` the refinement's most steps
+        (:func:`fnsi.identification.identify`).
         """
         elements = tuple(elements)
         settings = replace(self.settings, elements=elements, order=order,
@@ -510,7 +512,7 @@ class Study:
         report = progress or (lambda fraction, message: None)
         # reflection changes nothing in a stable model, so it costs nothing to ask for
         result = identify(self.estimation, settings, lambda f, m: report(0.9 * f, m),
-                          reflect_unstable=True)
+                          reflect_unstable=True, refine_iterations=refine_iterations)
         repairs = (("unstable poles reflected inside the unit circle, B and D fitted "
                     "again",) if any("were reflected inside" in w for w in result.warnings)
                    else ())
@@ -572,13 +574,14 @@ class Study:
         return math.isfinite(floor) and nrmse > AUTO_REFINE_FACTOR * floor
 
     def better_refined(self, evaluation: Evaluation, progress: Progress | None = None, *,
-                       uncertainty: bool = True) -> Evaluation:
+                       uncertainty: bool = True, iterations: int | None = None
+                       ) -> Evaluation:
         """``evaluation`` (FNSI's model) or the same model refined by its simulation
         error, whichever validates better; the refinement is named in its repairs
-        (``uncertainty`` as in :meth:`evaluate`)."""
+        (``uncertainty`` as in :meth:`evaluate`, ``iterations`` its most steps)."""
         error, floor = evaluation.nrmse_percent, self.noise_floor_percent
         refined = self.evaluate(evaluation.elements, evaluation.order, progress, refine=True,
-                                uncertainty=uncertainty)
+                                uncertainty=uncertainty, refine_iterations=iterations)
         if not refined.nrmse_percent < error:
             return evaluation
         return replace(refined, repairs=(*refined.repairs, (
