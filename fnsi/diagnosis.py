@@ -13,8 +13,9 @@ candidate missing effects in three stages, from cheap to expensive:
    shape of the force. The reduction of the noise-weighted residual ranks the locations;
    one set of line-wise products serves them all.
 2. **Compare kinds** at the best locations, and at every connection among the DOFs of
-   the locations the screening cannot tell apart (:func:`kind_locations`), with the same
-   fixed-pole fit, each with a linear spring at its location (the starting model
+   the locations the screening cannot tell apart (:func:`kind_locations`), once per
+   place (locations whose relative motions agree are one, :func:`distinct_locations`),
+   with the same fixed-pole fit, each with a linear spring at its location (the starting model
    absorbed part of the effect as linear stiffness): clearance (gaps searched;
    symmetric, one-sided or, when its extra gap pays for itself, asymmetric), cubic
    stiffness (hardening or softening), quadratic stiffness (asymmetry), Coulomb friction
@@ -36,8 +37,9 @@ none is claimed alone, two that each help significantly are validated together, 
 second chosen with the poles held (:func:`claim_pair`: of two missing effects, each of
 which the revision's linear part absorbed in part, either may be too little alone).
 When FNSI's revision misses the floor by the study's refinement threshold, element
-candidates are judged as the study would keep them, refined by their simulation error,
-against the revision refined the same way (:func:`_reference`). When none is claimed
+candidates are judged as the study would keep them, refined by their simulation error
+(in :data:`TRIAL_STEPS` steps), against the revision refined the same way
+(:func:`_reference`). When none is claimed
 the summary gives the rule, the numbers that stopped the best candidate, and, while the
 error stays above three times the floor, what remains unexplained and where
 (:func:`fnsi.claim.unexplained`); it says that nothing is missing only near the floor.
@@ -1132,10 +1134,11 @@ def _reference(study: Study, revision: int, judge: _Judge, notes: list[str]) -> 
     estimate is not what the loop would keep: a revision with an element is then
     refined by its simulation error, and FNSI's coefficients of an element identified
     from noisy or integrated outputs can make the model worse than without it. Every
-    element's trial model is then the better of FNSI's and its refinement, and so is the
-    reference, the revision refined the same way, so that a candidate is not credited
-    for the linear part that the refinement alone corrects (``notes`` says so). One
-    more mode is judged against the revision itself: a linear revision stays FNSI's.
+    element's trial model is then the better of FNSI's and its refinement (at most
+    :data:`TRIAL_STEPS` steps), and so is the reference, the revision refined the same
+    way, so that a candidate is not credited for the linear part that the refinement
+    alone corrects (``notes`` says so). One more mode is judged against the revision
+    itself: a linear revision stays FNSI's.
     """
     base = study.revisions[revision]
     error = base.nrmse_percent

@@ -20,6 +20,7 @@ import dataclasses
 import json
 import math
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -28,6 +29,7 @@ from fnsi.acquisition import acquire
 from fnsi.claim import claim_test
 from fnsi.diagnosis import (
     MAX_KIND_LOCATIONS,
+    TRIAL_STEPS,
     Candidate,
     Diagnosis,
     DiagnosisSettings,
@@ -40,6 +42,7 @@ from fnsi.diagnosis import (
     _summary,
     added_parameters,
     candidate_locations,
+    distinct_locations,
     implausibility,
     kind_locations,
     rank_candidates,
@@ -47,7 +50,7 @@ from fnsi.diagnosis import (
 from fnsi.excitation import Excitation, periodic_noise
 from fnsi.identification import IdentificationSettings
 from fnsi.nonlinear import NonlinearElement
-from fnsi.screening import ScreeningProblem
+from fnsi.screening import MotionRecord, ScreeningProblem
 from fnsi.structure import StructuralModel
 from fnsi.study import Study
 
@@ -126,15 +129,17 @@ def test_elements_are_judged_refined_against_the_refined_revision(cubic_case):
     study, diagnosis = cubic_case
     revision = study.revisions[0]
     assert revision.nrmse_percent > 3.0 * revision.noise_floor_percent  # FNSI's, far off
-    # the reference: the revision or its refinement, whichever validates better
-    refined = study.evaluate([], revision.identified_order, uncertainty=False, refine=True)
+    # the reference: the revision or its refinement (trial steps), whichever validates better
+    refined = study.evaluate([], revision.identified_order, uncertainty=False, refine=True,
+                             refine_iterations=TRIAL_STEPS)
     reference = min(refined.nrmse_percent, revision.nrmse_percent)
     elements = [c for c in diagnosis.candidates if c.element is not None]
     assert all(c.claim.before == reference for c in elements)
     # each element's model: FNSI's or its refinement, whichever validates better
     top = diagnosis.candidates[0]
     trial = (dataclasses.replace(top.element, coefficients=None),)
-    fnsi, refined_top = (study.evaluate(trial, top.order, uncertainty=False, refine=refine)
+    fnsi, refined_top = (study.evaluate(trial, top.order, uncertainty=False, refine=refine,
+                                        refine_iterations=TRIAL_STEPS)
                          for refine in (False, True))
     assert top.validation_nrmse_percent == min(fnsi.nrmse_percent, refined_top.nrmse_percent)
     # one more mode is a linear revision, which stays FNSI's: judged against the revision
@@ -379,6 +384,21 @@ def test_kinds_are_compared_at_every_connection_among_near_tied_dofs():
     assert len(kind_locations(many, top=3)) == MAX_KIND_LOCATIONS
     assert kind_locations([_scored("w", None, 0.0)], top=3)[0].location == Location("w")
 
+
+
+def test_locations_moving_alike_are_compared_once():
+    """A DOF against points that move 0.3 % of it (or the ground) is one place for an
+    element, kept at its best-screened location; against a partner that moves half as
+    much it is another. Opposite orientations of one pair are the same place."""
+    t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+    w, b = np.sin(t), 0.5 * np.sin(t + 1.0)
+    still = 0.003 * np.cos(3.0 * t)
+    x = np.stack([w, b, still, -still], axis=-1)[None]
+    problem = SimpleNamespace(motion=MotionRecord(x, np.zeros_like(x), ("w", "b", "p1", "p2")))
+    scores = [_scored("w", "p1", 0.9), _scored("w", None, 0.9), _scored("w", "b", 0.9),
+              _scored("p2", "w", 0.9), _scored("b", "p1", 0.8), _scored("b", None, 0.8)]
+    kept = [s.location for s in distinct_locations(problem, scores)]
+    assert kept == [Location("w", "p1"), Location("w", "b"), Location("b", "p1")]
 
 def test_claim_rule():
     # significant (z above the critical value) and worth its one parameter
