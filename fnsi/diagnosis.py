@@ -15,8 +15,8 @@ candidate missing effects in three stages, from cheap to expensive:
 2. **Compare kinds** at the best locations, and at every connection among the DOFs of
    the locations the screening cannot tell apart (:func:`kind_locations`), once per
    place (locations whose relative motions agree are one, :func:`distinct_locations`),
-   with the same fixed-pole fit, each with a linear spring at its location (the starting model
-   absorbed part of the effect as linear stiffness): clearance (gaps searched;
+   with the same fixed-pole fit, each with a linear spring at its location (the starting
+   model absorbed part of the effect as linear stiffness): clearance (gaps searched;
    symmetric, one-sided or, when its extra gap pays for itself, asymmetric), cubic
    stiffness (hardening or softening), quadratic stiffness (asymmetry), Coulomb friction
    (smoothing width searched) and quadratic damping.
@@ -39,9 +39,9 @@ which the revision's linear part absorbed in part, either may be too little alon
 When FNSI's revision misses the floor by the study's refinement threshold, element
 candidates are judged as the study would keep them, refined by their simulation error
 (in :data:`TRIAL_STEPS` steps), against the revision refined the same way
-(:func:`_reference`). When none is claimed
-the summary gives the rule, the numbers that stopped the best candidate, and, while the
-error stays above three times the floor, what remains unexplained and where
+(:func:`_reference`). When none is claimed the summary gives the rule, the numbers that
+stopped the best candidate, and, while the error stays above three times the floor, what
+remains unexplained and where
 (:func:`fnsi.claim.unexplained`); it says that nothing is missing only near the floor.
 Elements the revision already holds (same law at the same location) are never
 proposed.
