@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -57,15 +58,19 @@ class Rendering:
 
 def render(page: Path) -> Rendering:
     """Load ``page`` (a local file) in a fresh headless Chromium and inspect it."""
-    with tempfile.TemporaryDirectory(prefix="chromium-") as profile:
+    # Chromium's helper processes can still be writing to the profile when the browser
+    # has exited (a CI run failed removing it: "Directory not empty"), so the browser
+    # runs in a process group of its own that is ended as a whole, and what a helper
+    # still writes does not fail the test.
+    with tempfile.TemporaryDirectory(prefix="chromium-", ignore_cleanup_errors=True) as profile:
         sandbox = ("--no-sandbox",) if os.geteuid() == 0 else ()  # root cannot sandbox
         process = subprocess.Popen([CHROMIUM, *_FLAGS, *sandbox, f"--user-data-dir={profile}",
                                     "about:blank"], stdout=subprocess.DEVNULL,
-                                   stderr=subprocess.DEVNULL)
+                                   stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             return _inspect(_page_socket(Path(profile)), page)
         finally:
-            process.terminate()
+            os.killpg(process.pid, signal.SIGTERM)
             process.wait(timeout=30)
 
 
