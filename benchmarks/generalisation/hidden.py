@@ -7,7 +7,8 @@ records (40-120 lines in the band, at most 4096 samples per period: the time int
 is the cost), then draws its hidden effects:
 
 ========================  ======================================================
-effects                   none 15 %, one 65 %, two 20 % (two distinct locations)
+effects                   none 15 %, one 65 %, two 20 % (two distinct locations;
+                          one with a single sensor, which offers one location)
 kind                      cubic hardening, cubic softening, quadratic stiffness,
                           symmetric clearance, asymmetric clearance, one-sided stop,
                           Coulomb friction, quadratic damping (uniform)
@@ -150,6 +151,12 @@ def _spring_distance(setup: Setup, dof: int) -> int:
     return distance
 
 
+def _location_count(setup: Setup) -> int:
+    """Locations an effect can take: each sensor to ground and each pair of sensors."""
+    s = setup.sensors.size
+    return s + s * (s - 1) // 2
+
+
 def _draw_draft(rng: np.random.Generator, setup: Setup, taken: set) -> Draft:
     """A random kind at a random measured location not in ``taken``."""
     sensors = [int(s) for s in setup.sensors]
@@ -270,7 +277,8 @@ def draw_hidden_case(seed: np.random.SeedSequence, *, noise_free: bool = False,
     motion = _linear_motion(setup, validation)
     linear = _respond(setup, validation, (), RECORD)
     linear_estimation = _respond(setup, setup.spectrum, (), RECORD)
-    count = int(rng.choice(3, p=(0.15, 0.65, 0.20)))
+    # two effects need two locations: one sensor offers only its own to ground
+    count = min(int(rng.choice(3, p=(0.15, 0.65, 0.20))), _location_count(setup))
     redraws = 0
     while True:
         effects, more = _draw_effects(rng, setup, validation, linear, motion, count)

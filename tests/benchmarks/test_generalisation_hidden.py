@@ -4,6 +4,7 @@ case linear; its scorer reads kinds, locations and stop sides as documented."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -60,6 +61,17 @@ def test_stronger_effect_misses_the_linear_model_more():
         errors = [hidden._error(setup, validation, linear, (draft.element(p, motion),))
                   for p in (0.05, 0.5)]
         assert 0 < errors[0] < errors[1], kind
+
+
+def test_a_single_sensor_offers_one_location_and_two_effects_need_two():
+    # a pair drawn on one sensor searched forever for a second free location (seed 1021,
+    # case 28 hung the generator); one sensor to ground is its only location
+    setup, _ = _setup()
+    one = dataclasses.replace(setup, sensors=np.array([1]))
+    assert hidden._location_count(one) == 1 and hidden._location_count(setup) == 3
+    rng = np.random.default_rng(0)
+    first = hidden._draw_draft(rng, one, set())
+    assert (first.dof, first.ref) == (1, GROUND)
 
 
 def test_no_effect_case_is_linear_and_keeps_its_truth_out_of_the_data():
