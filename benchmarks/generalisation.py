@@ -32,9 +32,10 @@ Hidden-effect part (``--part hidden``, default 150 cases, seed 21): the same str
 and tests with shorter records and 0, 1 or 2 hidden nonlinear elements (cubic hardening
 and softening, quadratic stiffness, symmetric and asymmetric clearances, one-sided stops,
 Coulomb friction, quadratic damping; to ground or between measured DOFs, near or far from
-the input), each sized so that the true linear structure misses the validation response
-by 3-60 % (:mod:`benchmarks.generalisation.hidden`, scipy's integrator to periodic
-steady state); the library's study loop with its defaults (create, diagnose, add the top
+the input), each sized so that the true linear structure misses the validation response,
+and the estimation response it is identified from, by 3-60 %
+(:mod:`benchmarks.generalisation.hidden`, scipy's integrator to periodic steady state); the
+library's study loop with its defaults (create, diagnose, add the top
 candidate, diagnose, add) on each, blind; scored by
 :mod:`benchmarks.generalisation.hidden_scoring` into
 benchmarks/results/generalisation_hidden.md. ``--smoke``: the first 10 cases. ``--jobs``
