@@ -220,8 +220,8 @@ def finer_model(model: StateSpaceModel, factor: int, frequencies: np.ndarray
 
 
 def simulate_oversampled(model: StateSpaceModel, u: np.ndarray, band_high: float,
-                         factor: int | None = None, feedthrough: str = "implicit"
-                         ) -> np.ndarray:
+                         factor: int | None = None, feedthrough: str = "implicit",
+                         max_periods: int = 100, corrections: int = 1) -> np.ndarray:
     """Steady-state period of the outputs at fs, simulated at ``factor`` times fs.
 
     Parameters
@@ -237,6 +237,9 @@ def simulate_oversampled(model: StateSpaceModel, u: np.ndarray, band_high: float
         elements (1: :func:`fnsi.simulation.simulate_periodic` at fs).
     feedthrough : {"implicit", "explicit"}
         Treatment of the nonlinear feed-through (:mod:`fnsi.simulation`).
+    max_periods, corrections : int
+        Most periods simulated to reach the steady state, and periods after which the
+        state is corrected towards it (:func:`fnsi.simulation.simulate_periodic`).
 
     Returns
     -------
@@ -252,10 +255,12 @@ def simulate_oversampled(model: StateSpaceModel, u: np.ndarray, band_high: float
         factor = oversampling_factor(model.elements, model.fs, band_high)
     n = u.shape[1]
     if factor == 1:
-        return np.stack([simulate_periodic(model, period, feedthrough=feedthrough).y
-                         for period in u])
+        return np.stack([simulate_periodic(model, period, feedthrough=feedthrough,
+                                           max_periods=max_periods,
+                                           corrections=corrections).y for period in u])
     lines = np.arange(min(math.floor(band_high * n / model.fs), (n - 1) // 2) + 1)
     fine = finer_model(model, factor, lines * model.fs / n)
-    y = np.stack([simulate_periodic(fine, period, feedthrough=feedthrough).y
+    y = np.stack([simulate_periodic(fine, period, feedthrough=feedthrough,
+                                    max_periods=max_periods, corrections=corrections).y
                   for period in upsample(u, factor)])
     return decimate(y, factor)

@@ -60,7 +60,8 @@ class Comparison:
 
 def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
             band_high: float, oversampling: int | None = None,
-            feedthrough: str = "implicit", offsets_removed: bool = False) -> Comparison:
+            feedthrough: str = "implicit", offsets_removed: bool = False,
+            max_periods: int = 100, corrections: int = 1) -> Comparison:
     """Simulate ``model`` with the input of ``measurement`` and compare the outputs.
 
     Parameters
@@ -85,6 +86,11 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
         The model was identified on data without their sensor offsets
         (``IdentificationSettings.remove_offsets``), so it is driven by the measured input
         without its offset too.
+    max_periods, corrections : int
+        Most periods simulated to reach the steady state (a model that takes more cannot
+        be compared: :class:`fnsi.simulation.SimulationDivergedError`), and periods
+        after which the state is corrected towards it (:func:`fnsi.simulation.
+        simulate_periodic`).
 
     Returns
     -------
@@ -102,7 +108,8 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     centred, offsets = remove_offsets(data, discard_periods)
     measured = kept_record(centred.y, data.periods, discard_periods)
     u = (centred if offsets_removed else data).u[:, -data.period_length:]
-    periods = simulate_oversampled(model, u, band_high, oversampling, feedthrough)
+    periods = simulate_oversampled(model, u, band_high, oversampling, feedthrough, max_periods,
+                                   corrections)
     simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
     simulated = simulated - simulated.mean(axis=1, keepdims=True)
     high = min(data.fs / 2, ERROR_BAND_FACTOR * band_high)
