@@ -116,6 +116,13 @@ class UsedSettings(StoredDocument):
                               "fields).")
     remove_offsets: bool = Field(False, description="Sensor offsets removed before the "
                                  "estimation.")
+    harmonic_band: bool = Field(
+        False, description="With elements, the lines up to 3 times the band's upper edge "
+        "fitted too (studies).")
+    order_rule: Literal["modes", "simulation"] = Field(
+        "modes", description="How order \"auto\" was chosen: modes (the stabilisation "
+        "diagram's physical modes) or simulation (the order that simulates the estimation "
+        "data best; studies).")
 
 
 class UncertaintySummary(StoredDocument):
@@ -128,6 +135,20 @@ class UncertaintySummary(StoredDocument):
                        examples=[6])
     note: str | None = Field(description="Why no error bar could be given (e.g. a single "
                              "kept period); null when the std fields hold values.")
+
+
+class SimulationOrderSummary(StoredDocument):
+    """The automatic order of order_rule simulation (fnsi.simulation_order): the lowest
+    order whose simulation of the estimation data is within 10 % of the best above the
+    noise floor."""
+
+    order: int = Field(description="Chosen model order.", examples=[14])
+    errors_percent: dict[str, float | None] = Field(
+        description="Estimation-data NRMSE [%] of each order tried, keyed by order; null: "
+        "the model could not be simulated.", examples=[{"12": 0.62, "14": 0.56}])
+    noise_floor_percent: float | None = Field(
+        description="Noise floor of the estimation data on the same lines [%].",
+        examples=[0.43])
 
 
 class IdentificationJobResult(StoredDocument):
@@ -168,6 +189,9 @@ class IdentificationJobResult(StoredDocument):
     offsets: ChannelOffsets | None = Field(
         None, description="Offsets of the estimation data, with whether they were removed "
         "before the estimation.")
+    simulation_order: SimulationOrderSummary | None = Field(
+        None, description="With order_rule simulation: the estimation data's simulation "
+        "error of each order tried and the order chosen; null otherwise.")
 
 
 class RevisionSummary(StoredDocument, RevisionRecord):
