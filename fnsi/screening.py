@@ -157,6 +157,7 @@ class ScreeningProblem:
         w = np.linalg.solve(np.swapaxes(shifted, 1, 2), np.broadcast_to(wc, (z.size, n,
                                                                              wc.shape[1])))
         w = np.swapaxes(w, 1, 2)                                               # (N, l, n)
+        self._w, self._y = w, y
         self._gram_lines = np.einsum("kli,klj->kij", w.conj(), w).reshape(z.size, n * n)
         self._gram_real = np.ascontiguousarray(self._gram_lines.real)
         self._gram_imag = np.ascontiguousarray(self._gram_lines.imag)
@@ -230,9 +231,24 @@ class ScreeningProblem:
         b_candidate : ndarray, shape (n, s)
             The candidate's columns of B^e.
         """
-        cost, theta = self._added(self._gram(self._base, columns),
-                                  self._gram(columns, columns), self._rhs(columns))
+        cross = self._gram(self._base, columns)
+        cost, theta = self._added(cross, self._gram(columns, columns), self._rhs(columns))
+        if not CANCELLATION * self.base_cost < cost <= self.base_cost:
+            cost = self._residual_cost(columns, cross, theta)
         return cost, theta.reshape(-1, self.order).T
+
+    def _residual_cost(self, columns: np.ndarray, cross: np.ndarray,
+                       theta: np.ndarray) -> float:
+        """The weighted residual energy of a fit computed from its residual, not as the
+        energy less the explained part (which cancels when the normal equations are
+        ill-conditioned, e.g. a revision of high order fitted on few lines: costs below
+        zero, reductions of 20 times the residual)."""
+        base = self._base_solution - self._base_inverse @ cross @ theta
+        n = self.order
+        force = (np.einsum("rka,an->rkn", self._base, base.reshape(-1, n))
+                 + np.einsum("rka,an->rkn", columns, theta.reshape(-1, n)))
+        residual = self._y - np.einsum("kln,rkn->rkl", self._w, force)
+        return float(np.sum(np.abs(residual) ** 2))
 
     def fit_rank_one(self, columns: np.ndarray, iterations: int = 6
                      ) -> tuple[float, np.ndarray]:
@@ -276,7 +292,13 @@ class ScreeningProblem:
 
     def reduction(self, cost: float) -> float:
         """Fraction of the base residual a candidate explains, in [0, 1]."""
-        return max(0.0, (self.base_cost - cost) / self.base_cost)
+        return min(max(0.0, (self.base_cost - cost) / self.base_cost), 1.0)
+
+
+CANCELLATION = 1e-6
+"""A fit whose cost from the normal equations falls below this fraction of the base
+residual (or below zero, or above the base) is costed from its residual instead
+(:meth:`ScreeningProblem._residual_cost`)."""
 
 
 def _solve_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
