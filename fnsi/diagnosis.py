@@ -81,7 +81,7 @@ from fnsi.screening import ScreeningProblem
 from fnsi.units import ModelUnits
 
 if TYPE_CHECKING:
-    from fnsi.study import Evaluation, Study
+    from fnsi.study import Evaluation, Revision, Study
 
 Progress = Callable[[float, str], None]
 
@@ -1109,10 +1109,11 @@ class _Judge:
         by the simulation error in at most :data:`TRIAL_STEPS` steps (:func:`_reference`).
         A model that cannot be simulated even repaired is not refined, as the study
         refines only a model it could run (:meth:`fnsi.study.Study._refined_if_needed`)."""
-        refined = study.revisions[revision].refined
+        base = study.revisions[revision]
         evaluation = study.evaluate(elements, order, uncertainty=False,
-                                    refine=refined or None)
-        if (self.refine_trials and not refined
+                                    refine=base.refined or None,
+                                    order_near=base.identified_order)
+        if (self.refine_trials and not base.refined
                 and math.isfinite(evaluation.nrmse_percent)):
             return study.better_refined(evaluation, uncertainty=False,
                                         iterations=TRIAL_STEPS)
@@ -1160,13 +1161,21 @@ def _reference(study: Study, revision: int, judge: _Judge, notes: list[str]) -> 
     return replace(judge, before=reference.nrmse_percent, base_simulated=reference.simulated)
 
 
+def candidate_order(base: Revision) -> int | str:
+    """The order a candidate element is identified at: ``"auto"`` when the revision
+    asked for it (the order whose model simulates the estimation data best with the
+    element, :mod:`fnsi.simulation_order`, as the study's next revision would choose it),
+    else the revision's own."""
+    return "auto" if base.order == "auto" else base.identified_order
+
+
 def _validate(study: Study, revision: int, proposal: Proposal, judge: _Judge,
               score: LocationScore | None) -> Candidate:
     """Stage 3 for one element proposal."""
     base = study.revisions[revision]
     try:
         evaluation = judge.evaluate(study, revision, (*base.elements, proposal.element),
-                                    base.identified_order)
+                                    candidate_order(base))
     except ValueError as error:   # e.g. too many basis functions for the data
         return _unidentified(proposal.effect, proposal.location, proposal.element,
                              base.identified_order, proposal.reduction, error)
@@ -1277,7 +1286,7 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
             continue
         try:
             evaluation = judge.evaluate(study, revision, (*base.elements, alone, other.element),
-                                        base.identified_order)
+                                        candidate_order(base))
         except ValueError:   # e.g. too many basis functions for the data
             continue
         pair = tests.test(evaluation, first.parameters

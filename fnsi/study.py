@@ -12,6 +12,14 @@ and overall NRMSE in % and dB, the noise floor, and the error on every DFT line 
 0 Hz: each channel's offset (its mean over the kept periods, :mod:`fnsi.offsets`) is not
 compared, and is reported in ``study.json`` and below the history table.
 
+A revision's order ``"auto"`` is the order whose model simulates the estimation data best
+(``order_rule="simulation"``, :mod:`fnsi.simulation_order`): the study judges models by
+how they simulate, and a nonlinear element's forces drive modes outside the band that
+the modal rule of an identification does not count. A revision with elements is also
+fitted on the lines up to the band's harmonics (``harmonic_band``), those its errors
+cover, where the forces drive these modes. A revision keeps the order its base asked
+for (``"auto"`` is chosen again with the new elements) unless it sets its own.
+
 The error history shows revision by revision whether the model improves; the diagnosis
 (:mod:`fnsi.diagnosis`) proposes what to add next.
 
@@ -23,6 +31,7 @@ simulated validation outputs and error spectra).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
@@ -64,6 +73,18 @@ REPAIRS = (("implicit", ""),
                         "output equation has no solution on the validation input)"))
 """Simulations tried in turn, with the words recorded when one other than the first runs
 (:mod:`fnsi.simulation`, ``feedthrough``)."""
+
+
+def _better_simulating(a: IdentificationResult, b: IdentificationResult
+                       ) -> IdentificationResult:
+    """Of two identifications of one model (the band alone, and with its harmonics:
+    ``harmonic_band``), the one whose chosen order simulates the estimation data better
+    (:mod:`fnsi.simulation_order`; the first when neither was searched)."""
+    def error(result: IdentificationResult) -> float:
+        search = result.simulation_order
+        return math.inf if search is None else search.errors[search.order]
+
+    return b if error(b) < error(a) else a
 
 
 def pooled_percent(values: np.ndarray, power: np.ndarray) -> float:
@@ -491,8 +512,8 @@ class Study:
     # -- revisions -------------------------------------------------------------------------
     def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
                  progress: Progress | None = None, *, uncertainty: bool = True,
-                 refine: bool | None = None, refine_iterations: int | None = None
-                 ) -> Evaluation:
+                 refine: bool | None = None, refine_iterations: int | None = None,
+                 order_near: int | None = None) -> Evaluation:
         """Identify a model on the estimation data and run it on the validation data.
 
         The study is not changed. A model that cannot be simulated is repaired before it
@@ -502,17 +523,29 @@ class Study:
         simulable is returned with ``failure`` set instead of raising. ``uncertainty``
         False skips the standard deviations of its modes and coefficients (trial models
         of the diagnosis, of which only the errors count); ``refine`` overrides the
-        study's ``settings.refine``, ``refine_iterations`` the refinement's most steps
-        (:func:`fnsi.identification.identify`).
+        study's ``settings.refine``, ``refine_iterations`` the refinement's most steps,
+        ``order_near`` is where the search of an ``"auto"`` order starts (the order of
+        the model with one element fewer; :func:`fnsi.identification.identify`).
         """
         elements = tuple(elements)
         settings = replace(self.settings, elements=elements, order=order,
+                           order_rule="simulation" if elements else self.settings.order_rule,
+                           harmonic_band=True,
                            uncertainty=uncertainty and self.settings.uncertainty,
                            refine=self.settings.refine if refine is None else refine)
         report = progress or (lambda fraction, message: None)
         # reflection changes nothing in a stable model, so it costs nothing to ask for
-        result = identify(self.estimation, settings, lambda f, m: report(0.9 * f, m),
-                          reflect_unstable=True, refine_iterations=refine_iterations)
+        result = identify(self.estimation, replace(settings, harmonic_band=False),
+                          lambda f, m: report(0.45 * f, m), reflect_unstable=True,
+                          refine_iterations=refine_iterations, order_near=order_near)
+        if elements and order == "auto":
+            # the band with its harmonics too, kept if it simulates the estimation data
+            # better (a ValueError: e.g. no order of the wider fit can be simulated)
+            with contextlib.suppress(ValueError):
+                result = _better_simulating(result, identify(
+                    self.estimation, settings, lambda f, m: report(0.45 + 0.45 * f, m),
+                    reflect_unstable=True, refine_iterations=refine_iterations,
+                    order_near=result.order))
         repairs = (("unstable poles reflected inside the unit circle, B and D fitted "
                     "again",) if any("were reflected inside" in w for w in result.warnings)
                    else ())
@@ -590,8 +623,9 @@ class Study:
             f"{refined.nrmse_percent:.3g} %)")))
 
     def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
-                progress: Progress | None) -> Revision:
-        evaluation = self._refined_if_needed(self.evaluate(elements, order, progress), progress)
+                progress: Progress | None, order_near: int | None = None) -> Revision:
+        evaluation = self._refined_if_needed(
+            self.evaluate(elements, order, progress, order_near=order_near), progress)
         result = evaluation.identification
         revision = Revision(
             number=len(self.revisions), note=note, order=order, elements=elements,
@@ -621,7 +655,8 @@ class Study:
         remove : sequence of NonlinearElement, JSON dict or int
             Elements to remove, given as elements of the base revision or their index.
         order : int or "auto", optional
-            New model order; default: the base revision's identified order.
+            New model order; default: the order the base revision asked for (``"auto"``
+            chooses it again for the new elements, module docstring).
         note : str, optional
             What changed (default: generated from ``add``, ``remove`` and ``order``).
         base : int
@@ -640,14 +675,15 @@ class Study:
         elements, added, removed = revised_elements(parent.elements, self.output_names,
                                                     add=add, remove=remove,
                                                     parent_number=parent.number)
-        new_order = parent.identified_order if order is None else order
+        new_order = parent.order if order is None else order
         if note is None:
             words = [f"add {law_name(e)}" for e in added]
             words += [f"remove {law_name(parent.elements[k])}" for k in removed]
-            if new_order != parent.identified_order:
+            if new_order != parent.order:
                 words.append(f"order {new_order}")
             note = ", ".join(words) or "re-identified"
-        return self._append(elements, new_order, note, progress)
+        # an "auto" order is searched near the base's, as the diagnosis judged candidates
+        return self._append(elements, new_order, note, progress, parent.identified_order)
 
     # -- diagnosis and curves --------------------------------------------------------------
     def diagnose(self, revision: int = -1, settings: DiagnosisSettings | None = None,
