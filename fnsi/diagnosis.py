@@ -1110,10 +1110,12 @@ class _Judge:
         A model that cannot be simulated even repaired is not refined, as the study
         refines only a model it could run (:meth:`fnsi.study.Study._refined_if_needed`)."""
         base = study.revisions[revision]
+        # at an automatic order the search does much of what refinement did, at a small
+        # fraction of its cost: such trials stay FNSI's (refined only as the study asks)
+        refine = base.refined and order != "auto"
         evaluation = study.evaluate(elements, order, uncertainty=False,
-                                    refine=base.refined or None,
-                                    order_near=base.identified_order)
-        if (self.refine_trials and not base.refined
+                                    refine=refine or None, order_near=base.identified_order)
+        if (self.refine_trials and not base.refined and order != "auto"
                 and math.isfinite(evaluation.nrmse_percent)):
             return study.better_refined(evaluation, uncertainty=False,
                                         iterations=TRIAL_STEPS)
@@ -1139,13 +1141,18 @@ def _reference(study: Study, revision: int, judge: _Judge, notes: list[str]) -> 
     :data:`TRIAL_STEPS` steps), and so is the reference, the revision refined the same
     way, so that a candidate is not credited for the linear part that the refinement
     alone corrects (``notes`` says so). One more mode is judged against the revision
-    itself: a linear revision stays FNSI's.
+    itself: a linear revision stays FNSI's. Candidates identified at an automatic order
+    (:func:`candidate_order`) are judged as FNSI identified them: the order that
+    simulates them best does much of what the refinement did (on the generalisation
+    benchmark's development cases the true element at that order validated within
+    1.1-2.4 times the floor where refined trials at the revision's order reached 2-10
+    times), and five refinement steps at orders of 30-50 cost most of a diagnosis.
     """
     base = study.revisions[revision]
     error = base.nrmse_percent
     # as the study refines only a model it could simulate (Study._refined_if_needed)
     if (base.refined or study.settings.refine or not math.isfinite(error)
-            or not study.misses_floor(error)):
+            or not study.misses_floor(error) or candidate_order(base) == "auto"):
         return judge
     judge = replace(judge, refine_trials=True)
     try:
