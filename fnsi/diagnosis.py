@@ -21,7 +21,9 @@ candidate missing effects in three stages, from cheap to expensive:
    stiffness (hardening or softening), quadratic stiffness (asymmetry), Coulomb friction
    (smoothing width searched) and quadratic damping.
 3. **Validate** the best few by what the user cares about: FNSI identification of the
-   revision with the candidate added, simulation with the validation input and the
+   revision with the candidate added, as the next revision would be identified (at the
+   order that simulates it best when the revision's order is automatic,
+   :func:`candidate_order`), simulation with the validation input and the
    validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
    frequency, Section II.E). A missing linear mode (order + 2) is always validated.
 
@@ -36,10 +38,10 @@ candidates come first, the simpler winning unless the richer explains clearly mo
 none is claimed alone, two that each help significantly are validated together, the
 second chosen with the poles held (:func:`claim_pair`: of two missing effects, each of
 which the revision's linear part absorbed in part, either may be too little alone).
-When FNSI's revision misses the floor by the study's refinement threshold, element
-candidates are judged as the study would keep them, refined by their simulation error
-(in :data:`TRIAL_STEPS` steps), against the revision refined the same way
-(:func:`_reference`). When none is claimed the summary gives the rule, the numbers that
+When FNSI's revision, at an explicit order, misses the floor by the study's refinement
+threshold, element candidates are judged as the study would keep them, refined by their
+simulation error (in :data:`TRIAL_STEPS` steps), against the revision refined the same
+way (:func:`_reference`). When none is claimed the summary gives the rule, the numbers that
 stopped the best candidate, and, while the error stays above three times the floor, what
 remains unexplained and where
 (:func:`fnsi.claim.unexplained`); it says that nothing is missing only near the floor.
