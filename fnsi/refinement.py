@@ -51,7 +51,7 @@ from fnsi.errors import json_float
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement, NonlinearityKind
 from fnsi.simulation import SimulationDivergedError, element_incidence, simulate_periodic
-from fnsi.spectra import INTEGRATIONS, kept_record, period_mean
+from fnsi.spectra import INTEGRATIONS, kept_record, measured_excitation, period_mean
 from fnsi.statespace import StateSpaceModel
 from fnsi.subspace import solve_normal_equations
 
@@ -761,15 +761,17 @@ class _Problem:
 
 def _averaged_record(model: StateSpaceModel, measurement: Measurement,
                      discard_periods: int) -> tuple[np.ndarray, np.ndarray, Measurement]:
-    """One steady-state period per realisation: input (R, N, m), period-averaged output."""
+    """One steady-state period per realisation: the input the structure received
+    (:func:`fnsi.spectra.measured_excitation`, as the comparison drives the model) (R, N,
+    m), and the period-averaged output."""
     data = measurement.select(inputs=model.input_names, outputs=model.output_names)
     kept = data.periods - discard_periods
     if kept < 1:
         raise ValueError(f"discard_periods={discard_periods} leaves no period of the "
                          f"{data.periods} measured; discard fewer")
     y = period_mean(kept_record(data.y, data.periods, discard_periods), kept)
-    return (np.ascontiguousarray(data.u[:, -data.period_length:]),
-            y[:, :data.period_length], data)
+    u = measured_excitation(kept_record(data.u, data.periods, discard_periods), kept)
+    return np.ascontiguousarray(u), y[:, :data.period_length], data
 
 
 @dataclass(frozen=True)

@@ -29,10 +29,12 @@ Array convention: time series (realisations, samples, channels); spectra
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from fnsi.measurement import Measurement
 
@@ -213,6 +215,60 @@ def period_mean(x: np.ndarray, periods: int) -> np.ndarray:
     R, n, c = x.shape
     mean = x.reshape(R, periods, n // periods, c).mean(axis=1)
     return np.tile(mean, (1, periods, 1))
+
+
+POOLED_LINES = 16
+"""Lines on each side pooled into the noise variance of a line (with 2 kept periods a
+single line's estimate has 2 degrees of freedom; pooled, about 66 per realisation)."""
+
+
+def pooled_noise_variance(spectra: np.ndarray) -> np.ndarray:
+    """Noise variance of the period-averaged spectrum, (lines, channels).
+
+    ``spectra`` (R, P, lines, channels): the sample variance over periods divided by P,
+    averaged over realisations and over :data:`POOLED_LINES` lines on each side (the
+    noise spectrum is smooth; one line's estimate is not). NaN with one period.
+    """
+    periods = spectra.shape[1]
+    if periods < 2:
+        return np.full(spectra.shape[2:], np.nan)
+    mean = spectra.mean(axis=1, keepdims=True)
+    variance = np.sum(np.abs(spectra - mean) ** 2, axis=1) / (periods - 1) / periods
+    pooled = uniform_filter1d(variance.mean(axis=0), 2 * POOLED_LINES + 1, axis=0,
+                              mode="nearest")
+    return np.maximum(pooled, np.finfo(float).tiny)
+
+
+EXCITED_LEVEL = math.log(1e4)
+"""Power of a line of the period-averaged input over its noise variance above which the
+line is taken as excited (:func:`measured_excitation`): a line of noise alone exceeds it
+with probability 1e-4 (its power over the variance is exponential with mean 1)."""
+
+
+def measured_excitation(u: np.ndarray, periods: int) -> np.ndarray:
+    """The periodic input the structure received, from its measurement: one period per
+    realisation, (R, N, m).
+
+    The average of the ``periods`` periods of ``u`` (R, periods * N, m), with every line
+    but 0 Hz whose power does not stand out of the noise of that average
+    (:data:`EXCITED_LEVEL`, the variance pooled over neighbouring lines,
+    :func:`pooled_noise_variance`) set to zero: the sensor noise of a force, spread over
+    all lines, would otherwise drive a model on every line a multisine leaves out. A
+    model driven by one raw period of a 2.6 kHz accelerometer record answered that noise
+    up to the Nyquist frequency with 3.5 % of the response for a 0.47 % error on the
+    compared lines. With one period the record's single period is returned as it is.
+    Lines the input truly excites (a shaker's harmonics included) are periodic and kept.
+    """
+    r, samples, m = u.shape
+    n = samples // periods
+    if periods < 2:
+        return u[:, -n:]
+    spectra = np.fft.rfft(u.reshape(r, periods, n, m), axis=2)
+    mean = spectra.mean(axis=1)
+    noise = pooled_noise_variance(spectra)[None]
+    quiet = np.abs(mean) ** 2 <= EXCITED_LEVEL * noise
+    quiet[:, 0] = False
+    return np.fft.irfft(np.where(quiet, 0.0, mean), n=n, axis=1)
 
 
 def band_lines(n_samples: int, fs: float, band: tuple[float, float]) -> np.ndarray:

@@ -12,7 +12,9 @@ Both sides are compared without their 0 Hz line, which no identification band co
 (:mod:`fnsi.offsets`): the measured outputs lose their mean over the kept periods (their
 sensor offsets, reported in :attr:`Comparison.offsets`) and the simulated outputs theirs.
 The input drives the model as the estimation saw it: without its offset when the model
-was identified with ``remove_offsets``.
+was identified with ``remove_offsets``; and as the structure received it, the average of
+the kept periods without the lines where the force sensor measured only its noise
+(:func:`fnsi.spectra.measured_excitation`).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from fnsi.errors import ModelErrors, model_errors
 from fnsi.measurement import Measurement
 from fnsi.offsets import Offsets, remove_offsets
 from fnsi.oversampling import simulate_oversampled
-from fnsi.spectra import INTEGRATIONS, integrate_periodic, kept_record
+from fnsi.spectra import INTEGRATIONS, integrate_periodic, kept_record, measured_excitation
 from fnsi.statespace import StateSpaceModel
 
 if TYPE_CHECKING:
@@ -107,7 +109,8 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     data = measurement.select(inputs=model.input_names, outputs=model.output_names)
     centred, offsets = remove_offsets(data, discard_periods)
     measured = kept_record(centred.y, data.periods, discard_periods)
-    u = (centred if offsets_removed else data).u[:, -data.period_length:]
+    u = measured_excitation(kept_record((centred if offsets_removed else data).u, data.periods,
+                                        discard_periods), data.periods - discard_periods)
     periods = simulate_oversampled(model, u, band_high, oversampling, feedthrough, max_periods,
                                    corrections)
     simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
