@@ -235,3 +235,18 @@ def test_a_study_without_driving_point_warns_once_how_to_give_it(data):
     assert "input 'shaker' names no output" in warning and "driving_points" in warning
     assert study.history_table().splitlines()[-2] == f"warning: {warning}"
     assert study.to_json()["warnings"] == [warning]
+
+
+def test_an_automatic_study_chooses_each_revisions_order_by_simulation(data):
+    # order "auto": revision 0 and the revision adding the true cubic spring each take
+    # the order that simulates the estimation data best, the added one searched again
+    # (the default order of a new revision is the one its base asked for)
+    auto = Study.create(*data, dataclasses.replace(SETTINGS, order="auto"))
+    cubic = auto.add_revision(add=[CUBIC])
+    assert auto.revisions[0].order == "auto" and cubic.order == "auto"
+    assert cubic.note == "add cubic spring x3"
+    # the chain's five modes: every order chosen holds at least their ten states
+    assert auto.revisions[0].identified_order >= 10 and cubic.identified_order >= 10
+    # with the true element the model reaches the floor (measured 1.0-1.3 x)
+    assert cubic.nrmse_percent < 1.5 * auto.noise_floor_percent
+    assert cubic.nrmse_percent < auto.revisions[0].nrmse_percent / 10
