@@ -263,12 +263,18 @@ def measured_excitation(u: np.ndarray, periods: int) -> np.ndarray:
     n = samples // periods
     if periods < 2:
         return u[:, -n:]
-    spectra = np.fft.rfft(u.reshape(r, periods, n, m), axis=2)
+    record = u.reshape(r, periods, n, m)
+    spectra = np.fft.rfft(record, axis=2)
     mean = spectra.mean(axis=1)
     noise = pooled_noise_variance(spectra)[None]
     quiet = np.abs(mean) ** 2 <= EXCITED_LEVEL * noise
     quiet[:, 0] = False
-    return np.fft.irfft(np.where(quiet, 0.0, mean), n=n, axis=1)
+    # the quiet lines subtracted from the average, so that an input without noise comes
+    # back as its period to the last digit (no round trip through the DFT)
+    average = record.mean(axis=1)
+    if not quiet.any():
+        return average
+    return average - np.fft.irfft(np.where(quiet, mean, 0.0), n=n, axis=1)
 
 
 def band_lines(n_samples: int, fs: float, band: tuple[float, float]) -> np.ndarray:

@@ -37,6 +37,14 @@ if TYPE_CHECKING:
 #: The error spectra reach this multiple of the band's upper edge, so that harmonics
 #: created by an unmodelled nonlinearity show up above the identification band.
 ERROR_BAND_FACTOR = 3.0
+#: Periods after which the simulated state is moved to the linear part's periodic state
+#: under the last period's forces, until the response repeats (``corrections`` of
+#: :func:`fnsi.simulation.simulate_periodic`; the steady state is declared on periods run
+#: freely after them). A model whose nonlinear forces excite a slow mode (a stop's or a
+#: quadratic spring's static shift on a pole at |z| = 0.9999) otherwise drifts for more
+#: than the 100 periods allowed: a clearance model that the order search had simulated
+#: with corrections could not be compared on the validation record without them.
+CORRECTIONS = 30
 
 
 @dataclass(frozen=True)
@@ -63,7 +71,7 @@ class Comparison:
 def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
             band_high: float, oversampling: int | None = None,
             feedthrough: str = "implicit", offsets_removed: bool = False,
-            max_periods: int = 100, corrections: int = 1) -> Comparison:
+            max_periods: int = 100, corrections: int = CORRECTIONS) -> Comparison:
     """Simulate ``model`` with the input of ``measurement`` and compare the outputs.
 
     Parameters
@@ -91,8 +99,7 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     max_periods, corrections : int
         Most periods simulated to reach the steady state (a model that takes more cannot
         be compared: :class:`fnsi.simulation.SimulationDivergedError`), and periods
-        after which the state is corrected towards it (:func:`fnsi.simulation.
-        simulate_periodic`).
+        after which the state is corrected towards it (:data:`CORRECTIONS`).
 
     Returns
     -------

@@ -202,7 +202,11 @@ def test_velocity_dependent_elements_are_refined(chain, simulate_record):
     modal, sizes = real_modal_form(model)
     problem = _Problem(modal, sizes, u, y, np.arange(1, 80), 0, max_radius=1.0)
     theta = problem.layout.pack(modal)
-    J, fd = problem.jacobian(theta), _finite_difference_jacobian(problem, theta)
+    # a larger difference step than the smooth elements': the friction law's steep
+    # regularisation makes the residual's rounding, divided by the step, the difference's
+    # dominant error (measured 1e-4 at a relative step of 1e-5, 4e-3 at 1e-6, 3e-2 at 1e-7,
+    # and varying with the BLAS kernel at the smaller steps)
+    J, fd = problem.jacobian(theta), _finite_difference_jacobian(problem, theta, step=1e-5)
     assert (np.linalg.norm(J - fd, axis=0) / np.linalg.norm(fd, axis=0)).max() < 2e-3
     # FNSI 1.54 %, refined 1.18 %, floor 1.15 %
     before, after = (compare(identify(estimation, dataclasses.replace(settings, refine=flag))

@@ -183,30 +183,50 @@ def test_bad_inputs_say_what_to_change(data, tmp_path):
     assert math.isfinite(Study(estimation, validation, SETTINGS).noise_floor_percent)
 
 
-def test_an_unstable_revision_is_repaired_and_the_table_says_how(tmp_path):
+def _unstable_revision_settings():
+    """The README's record and stop at order 14, whose poles are unstable (|z| = 1.0003-1.0004)."""
     from fnsi.identification import IdentificationSettings
     from fnsi.smallsat import simulate_preset
 
-    # the README's record and stop: order 14 has unstable poles (|z| = 1.0003-1.0004)
     record, _ = simulate_preset("single", periods=3, samples_per_period=2500, seed=1)
     stop = NonlinearElement.from_json(
         {"kind": "clearance", "dof": "NC2w_Z", "ref": "NC2b_Z", "gap": 1.5})
-    settings = IdentificationSettings(outputs=("NC2w_Z", "NC2b_Z", "W_Z"), band=(5.0, 50.0),
-                                      block_rows=20, max_order=20, order=14, elements=(stop,))
+    return record, IdentificationSettings(outputs=("NC2w_Z", "NC2b_Z", "W_Z"),
+                                          band=(5.0, 50.0), block_rows=20, max_order=20,
+                                          order=14, elements=(stop,))
+
+
+def test_an_unstable_revision_is_repaired_and_the_table_says_how(tmp_path):
+    record, settings = _unstable_revision_settings()
     study = Study.create(record, record, settings)
     revision = study.revisions[0]
     # repaired, not dropped: the poles reflected inside the unit circle ...
     assert np.max(np.abs(np.linalg.eigvals(revision.model.A))) < 1.0
     assert revision.repairs and "reflected inside the unit circle" in revision.repairs[0]
-    # ... but the stiff contact loop of this order's model still diverges (orders 12-20
-    # alike on this 1 s record): the revision fails saying so, and the table says both
+    # ... and the stiff contact loop reaches its periodic state by the simulation's
+    # corrections (it diverged within 100 periods without them): an error, not a failure,
+    # though far from the 0.30 % floor (5.1 % measured: this order misses modes)
+    assert revision.failure is None and 0.3 < revision.nrmse_percent < 20
+    table = study.history_table().splitlines()
+    assert table[2].strip() == f"repaired: {revision.repairs[0]}"
+    assert study.history()[0]["repairs"] == list(revision.repairs)
+    reloaded = Study.load(study.save(tmp_path / "repaired"))
+    assert reloaded.revisions[0].repairs == revision.repairs
+
+
+def test_a_repaired_revision_that_diverges_fails_and_the_table_says_both(monkeypatch):
+    from fnsi.simulation import SimulationDivergedError
+
+    def diverges(*args, **kwargs):
+        raise SimulationDivergedError("the simulated response diverged")
+
+    monkeypatch.setattr("fnsi.study.compare_identified", diverges)
+    record, settings = _unstable_revision_settings()
+    revision = (study := Study.create(record, record, settings)).revisions[0]
     assert "diverged" in revision.failure and "were reflected inside" in revision.failure
     table = study.history_table().splitlines()
     assert "failed" in table[1] and table[2].strip() == f"failed: {revision.failure}"
     assert table[3].strip() == f"repaired: {revision.repairs[0]}"
-    assert study.history()[0]["repairs"] == list(revision.repairs)
-    reloaded = Study.load(study.save(tmp_path / "repaired"))
-    assert reloaded.revisions[0].repairs == revision.repairs
 
 
 def test_revisions_give_their_errors_modes_and_coefficients_with_standard_deviations(study):
