@@ -79,8 +79,9 @@ HIDDEN_HEADER = """# Generalisation benchmark, hidden-effect part
 Produced by `benchmarks/generalisation.py --part hidden` (issue 21): the linear part's
 random structures and tests (shorter records: 40-120 lines in the band, at most 4096
 samples per period, 3 periods) with 0, 1 or 2 hidden nonlinear elements at measured DOFs,
-each sized so that the true underlying linear structure misses the noise-free validation
-response by 3-60 % NRMSE; simulated to periodic steady state by scipy's DOP853 (not the
+each sized so that the true underlying linear structure misses the noise-free estimation
+and validation responses by 3-60 % NRMSE (the smaller of the two set to a drawn target, so
+that the effect acts in both records); simulated to periodic steady state by scipy's DOP853 (not the
 library's simulator); validation record: another random-phase realisation. The library
 runs the study loop as a user would with its defaults (`Study.create` with only the band,
 order `"auto"`; `diagnose`; the top candidate added when the diagnosis finds one; a
