@@ -1143,10 +1143,11 @@ class _Judge:
         base = study.revisions[revision]
         # at an automatic order the search does much of what refinement did, at a small
         # fraction of its cost: such trials stay FNSI's (refined only as the study asks)
-        refine = base.refined and base.order != "auto"
+        explicit = candidate_order(base) != "auto"
         evaluation = study.evaluate(elements, order, uncertainty=False,
-                                    refine=refine or None, order_near=base.identified_order)
-        if (self.refine_trials and not base.refined and base.order != "auto"
+                                    refine=(base.refined and explicit) or None,
+                                    order_near=base.identified_order)
+        if (self.refine_trials and not base.refined and explicit
                 and math.isfinite(evaluation.nrmse_percent)):
             return study.better_refined(evaluation, uncertainty=False,
                                         iterations=TRIAL_STEPS)

@@ -81,6 +81,12 @@ def _averaged_spectra(record: np.ndarray, periods: int) -> tuple[np.ndarray, np.
     return mean, variance
 
 
+CANCELLATION = 1e-6
+"""A fit whose cost from the normal equations falls below this fraction of the base
+residual (or below zero, or above the base) is costed from its residual instead
+(:meth:`ScreeningProblem._residual_cost`)."""
+
+
 class ScreeningProblem:
     """Fixed-pole least-squares fits of candidate forces on estimation spectra.
 
@@ -293,12 +299,6 @@ class ScreeningProblem:
     def reduction(self, cost: float) -> float:
         """Fraction of the base residual a candidate explains, in [0, 1]."""
         return min(max(0.0, (self.base_cost - cost) / self.base_cost), 1.0)
-
-
-CANCELLATION = 1e-6
-"""A fit whose cost from the normal equations falls below this fraction of the base
-residual (or below zero, or above the base) is costed from its residual instead
-(:meth:`ScreeningProblem._residual_cost`)."""
 
 
 def _solve_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:

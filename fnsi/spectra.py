@@ -271,10 +271,7 @@ def measured_excitation(u: np.ndarray, periods: int) -> np.ndarray:
     quiet[:, 0] = False
     # the quiet lines subtracted from the average, so that an input without noise comes
     # back as its period to the last digit (no round trip through the DFT)
-    average = record.mean(axis=1)
-    if not quiet.any():
-        return average
-    return average - np.fft.irfft(np.where(quiet, mean, 0.0), n=n, axis=1)
+    return record.mean(axis=1) - np.fft.irfft(np.where(quiet, mean, 0.0), n=n, axis=1)
 
 
 def band_lines(n_samples: int, fs: float, band: tuple[float, float]) -> np.ndarray:

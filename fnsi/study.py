@@ -603,11 +603,9 @@ class Study:
         revision at an explicit order stays FNSI's.
         """
         error = evaluation.nrmse_percent
-        if self.settings.refine or not math.isfinite(error):
-            return evaluation
-        if evaluation.elements and not self.misses_floor(error):
-            return evaluation
-        if not evaluation.elements and not (automatic and self.misses_floor(error, 1.0)):
+        needed = (self.misses_floor(error) if evaluation.elements
+                  else automatic and self.misses_floor(error, 1.0))
+        if self.settings.refine or not math.isfinite(error) or not needed:
             return evaluation
         return self.better_refined(evaluation, progress)
 
