@@ -51,6 +51,12 @@ class SimulationDivergedError(ValueError):
     """The simulated response grew without bound or a step had no solution."""
 
 
+class NoSteadyStateError(SimulationDivergedError):
+    """A periodic input's response did not settle to a periodic steady state in the
+    periods allowed: the model's dynamics (a drifting or self-excited mode), not how its
+    nonlinear feed-through is solved."""
+
+
 @numba.njit(cache=True)
 def _element_bases(z, kinds, values, value_offsets, basis_offsets, g, gx, gv):
     """Bases g and derivatives of all elements at relative motions z = [x_e] or [x_e; v_e]."""
@@ -62,6 +68,48 @@ def _element_bases(z, kinds, values, value_offsets, basis_offsets, g, gx, gv):
         for j in range(basis_offsets[e + 1] - start):
             g[start + j], gx[start + j], gv[start + j] = basis_value(
                 kinds[e], values, value_offsets[e], j, z[e], v)
+
+
+@numba.njit(cache=True)
+def _product(M, x, out, accumulate):
+    """out = M @ x, or out += M @ x: the loop's products in place, without BLAS (whose
+    call and allocation cost several times the arithmetic at these sizes) and with one
+    summation order on every CPU."""
+    for i in range(M.shape[0]):
+        total = out[i] if accumulate else 0.0
+        for j in range(M.shape[1]):
+            total += M[i, j] * x[j]
+        out[i] = total
+
+
+@numba.njit(cache=True)
+def _solve_in_place(J, r):
+    """Overwrite r with J^-1 r by Gaussian elimination with partial pivoting (J is
+    destroyed); False when J is singular. The Newton systems have one or two unknowns per
+    element."""
+    n = r.shape[0]
+    for c in range(n):
+        pivot = c
+        for i in range(c + 1, n):
+            if abs(J[i, c]) > abs(J[pivot, c]):
+                pivot = i
+        if J[pivot, c] == 0.0:
+            return False
+        if pivot != c:
+            for j in range(n):
+                J[c, j], J[pivot, j] = J[pivot, j], J[c, j]
+            r[c], r[pivot] = r[pivot], r[c]
+        for i in range(c + 1, n):
+            factor = J[i, c] / J[c, c]
+            for j in range(c, n):
+                J[i, j] -= factor * J[c, j]
+            r[i] -= factor * r[c]
+    for c in range(n - 1, -1, -1):
+        total = r[c]
+        for j in range(c + 1, n):
+            total -= J[c, j] * r[j]
+        r[c] = total / J[c, c]
+    return True
 
 
 @numba.njit(cache=True)
@@ -83,26 +131,46 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
     n_basis = g.shape[0]
     n_z = M.shape[0]
     half_fs = 0.5 * fs
+    z = np.zeros(n_z)
     z_hat = np.zeros(n_z)
+    step = np.zeros(n_z)
+    residual = np.zeros(n_z)
     gx = np.zeros(n_basis)
     gv = np.zeros(n_basis)
     J = np.empty((n_z, n_z))
+    y_hat = np.empty(n_outputs)
+    y = np.empty(n_outputs)
+    y_next = np.empty(n_outputs)
+    x_next = np.empty(x.shape[0])
     for k in range(n_samples):
-        y_hat = C @ x + Du @ u[k]
-        x_next = A @ x + Bu @ u[k]
-        y = y_hat.copy()
+        _product(C, x, y_hat, False)
+        _product(Du, u[k], y_hat, True)
+        _product(A, x, x_next, False)
+        _product(Bu, u[k], x_next, True)
+        y[:] = y_hat
         if n_basis > 0:
-            z_hat[:n_elements] = P @ y_hat          # P: (E, l) dof - ref incidence
+            _product(P, y_hat, z_hat, False)    # P: (E, l) dof - ref incidence
             if n_z > n_elements:
-                z_hat[n_elements:] = P @ (C @ x_next + Du @ u[k + 1] - y_prev) * half_fs
-            z = z_hat + M @ g            # the previous step's bases as first guess
+                _product(C, x_next, y_next, False)
+                _product(Du, u[k + 1], y_next, True)
+                for e in range(n_elements):
+                    total = 0.0
+                    for i in range(n_outputs):
+                        total += P[e, i] * (y_next[i] - y_prev[i])
+                    z_hat[n_elements + e] = total * half_fs
+            _product(M, g, step, False)         # the previous step's bases as first guess
+            for i in range(n_z):
+                z[i] = z_hat[i] + step[i]
             converged = False
             for _ in range(max_iterations):
                 _element_bases(z, kinds, values, value_offsets, basis_offsets, g, gx, gv)
-                step = M @ g
-                residual = z - z_hat - step
+                _product(M, g, step, False)
+                worst = 0.0
+                for i in range(n_z):
+                    residual[i] = z[i] - z_hat[i] - step[i]
+                    worst = max(worst, abs(residual[i]))
                 scale = np.max(np.abs(z_hat)) + np.max(np.abs(step))
-                if np.max(np.abs(residual)) <= tolerance * scale:
+                if worst <= tolerance * scale:
                     converged = True
                     break
                 J[:, :] = 0.0
@@ -110,22 +178,29 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
                     J[i, i] = 1.0
                 for e in range(n_elements):
                     for j in range(basis_offsets[e], basis_offsets[e + 1]):
-                        J[:, e] -= M[:, j] * gx[j]
-                        if n_z > n_elements:
-                            J[:, n_elements + e] -= M[:, j] * gv[j]
-                z -= np.linalg.solve(J, residual)
+                        for i in range(n_z):
+                            J[i, e] -= M[i, j] * gx[j]
+                            if n_z > n_elements:
+                                J[i, n_elements + e] -= M[i, j] * gv[j]
+                if not _solve_in_place(J, residual):   # singular, exactly at a fold
+                    break
+                for i in range(n_z):
+                    z[i] -= residual[i]
                 if not np.all(np.isfinite(z)):
                     break
             if not converged:
                 return _NOT_CONVERGED, k
             z_out[k] = z
-            x_next += Bg @ g
-            y += Dg @ g
+            _product(Bg, g, x_next, True)
+            _product(Dg, g, y, True)
         for i in range(n_outputs):
             if not np.abs(y[i]) <= limit[i]:  # also catches NaN
                 return _DIVERGED, k
         y_out[k] = y
-        y_prev[:] = y if implicit else y_hat
+        if implicit:
+            y_prev[:] = y
+        else:
+            y_prev[:] = y_hat
         x[:] = x_next
     return _OK, n_samples
 
@@ -282,14 +357,11 @@ class _Simulator:
         """
         y = np.full((u_extended.shape[0] - 1, self.model.n_outputs), np.nan)
         self.motion = np.zeros((y.shape[0], self.M.shape[0]))
-        try:
-            status, k = _step_loop(
-                *self.matrices, u_extended, self.x, self.y_prev, self.g,
-                float(self.model.fs), *self.tables, self.P, self.M, self.implicit,
-                self.max_iterations, self.tolerance, self.limit, y, self.motion,
-            )
-        except np.linalg.LinAlgError:   # singular Newton matrix, exactly at a fold:
-            status, k = _NOT_CONVERGED, int(np.argmax(np.isnan(y[:, 0])))  # first unfilled
+        status, k = _step_loop(
+            *self.matrices, u_extended, self.x, self.y_prev, self.g,
+            float(self.model.fs), *self.tables, self.P, self.M, self.implicit,
+            self.max_iterations, self.tolerance, self.limit, y, self.motion,
+        )
         t = (start + k) / self.model.fs
         if status == _DIVERGED:
             raise SimulationDivergedError(
@@ -529,7 +601,7 @@ def simulate_periodic(
                 steady_state_change=change, final_state=simulator.x.copy(),
                 motion=simulator.motion,
             )
-    raise SimulationDivergedError(
+    raise NoSteadyStateError(
         f"no periodic steady state after {max_periods} periods (last period-to-period "
         f"change {change:.3g} > tolerance {tolerance:g}): the response may be "
         f"quasi-periodic or chaotic, or the damping very light; raise max_periods"
