@@ -482,9 +482,7 @@ def _fit_with_linear(problem: ScreeningProblem, element: NonlinearElement) -> fl
     correcting the linear stiffness the starting model absorbed there (its best linear
     approximation): only the nonlinear part competes.
     """
-    columns = [problem.linear_spectrum(element.dof, element.ref),
-               problem.basis_spectra(element)]
-    return problem.fit(np.concatenate(columns, axis=2))[0]
+    return problem.with_spring(element.dof, element.ref).fit(problem.basis_spectra(element))[0]
 
 
 def _default_width(v: np.ndarray) -> float:
@@ -619,7 +617,7 @@ def _clearance_cost(problem: ScreeningProblem, location: Location, gn: float,
                     gp: float) -> float:
     """Fixed-pole cost of a clearance with gaps (gn, gp) (inf: no stop on that side)."""
     if math.isinf(gn) and math.isinf(gp):
-        return problem.fit(problem.linear_spectrum(location.dof, location.ref))[0]
+        return problem.with_spring(location.dof, location.ref).base_cost
     return _fit_with_linear(problem, _clearance(location, gn, gp))
 
 
