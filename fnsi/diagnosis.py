@@ -1122,7 +1122,7 @@ class _Judge:
         if order not in self.same_order:
             try:
                 self.same_order[order] = study.evaluate(base.elements, order,
-                                                        uncertainty=False)
+                                                        trial=True)
             except ValueError:   # e.g. the order exceeds what the data allow
                 return self
         reference = self.same_order[order]
@@ -1142,12 +1142,12 @@ class _Judge:
         # at an automatic order the search does much of what refinement did, at a small
         # fraction of its cost: such trials stay FNSI's (refined only as the study asks)
         explicit = candidate_order(base) != "auto"
-        evaluation = study.evaluate(elements, order, uncertainty=False,
+        evaluation = study.evaluate(elements, order, trial=True,
                                     refine=(base.refined and explicit) or None,
                                     order_near=base.identified_order)
         if (self.refine_trials and not base.refined and explicit
                 and math.isfinite(evaluation.nrmse_percent)):
-            return study.better_refined(evaluation, uncertainty=False,
+            return study.better_refined(evaluation, trial=True,
                                         iterations=TRIAL_STEPS)
         return evaluation
 

@@ -216,12 +216,15 @@ def finer_model(model: StateSpaceModel, factor: int, frequencies: np.ndarray
     return StateSpaceModel(A=A, B=B + correction[:model.order],
                            C=model.C, D=model.D + correction[model.order:],
                            fs=factor * model.fs, input_names=model.input_names,
-                           output_names=model.output_names, elements=model.elements)
+                           output_names=model.output_names, elements=model.elements,
+                           motion_offsets=model.motion_offsets)
 
 
 def simulate_oversampled(model: StateSpaceModel, u: np.ndarray, band_high: float,
                          factor: int | None = None, feedthrough: str = "implicit",
-                         max_periods: int = 100, corrections: int = 1) -> np.ndarray:
+                         max_periods: int = 100, corrections: int = 1,
+                         output_mean: np.ndarray | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
     """Steady-state period of the outputs at fs, simulated at ``factor`` times fs.
 
     Parameters
@@ -240,11 +243,16 @@ def simulate_oversampled(model: StateSpaceModel, u: np.ndarray, band_high: float
     max_periods, corrections : int
         Most periods simulated to reach the steady state, and periods after which the
         state is corrected towards it (:func:`fnsi.simulation.simulate_periodic`).
+    output_mean : ndarray, shape (l,), optional
+        Mean of the outputs the elements see (:func:`fnsi.simulation.simulate_periodic`).
 
     Returns
     -------
-    ndarray, shape (R, period_length, l)
+    y : ndarray, shape (R, period_length, l)
         Outputs [model output unit].
+    motion_offsets : ndarray, shape (E,)
+        Offsets of the elements' relative displacements, averaged over the realisations
+        (:attr:`fnsi.simulation.PeriodicResponse.motion_offsets`).
 
     Raises
     ------
@@ -254,13 +262,12 @@ def simulate_oversampled(model: StateSpaceModel, u: np.ndarray, band_high: float
     if factor is None:
         factor = oversampling_factor(model.elements, model.fs, band_high)
     n = u.shape[1]
-    if factor == 1:
-        return np.stack([simulate_periodic(model, period, feedthrough=feedthrough,
-                                           max_periods=max_periods,
-                                           corrections=corrections).y for period in u])
-    lines = np.arange(min(math.floor(band_high * n / model.fs), (n - 1) // 2) + 1)
-    fine = finer_model(model, factor, lines * model.fs / n)
-    y = np.stack([simulate_periodic(fine, period, feedthrough=feedthrough,
-                                    max_periods=max_periods, corrections=corrections).y
-                  for period in upsample(u, factor)])
-    return decimate(y, factor)
+    if factor > 1:
+        lines = np.arange(min(math.floor(band_high * n / model.fs), (n - 1) // 2) + 1)
+        model, u = finer_model(model, factor, lines * model.fs / n), upsample(u, factor)
+    responses = [simulate_periodic(model, period, feedthrough=feedthrough,
+                                   max_periods=max_periods, corrections=corrections,
+                                   output_mean=output_mean) for period in u]
+    y = np.stack([r.y for r in responses])
+    return (decimate(y, factor) if factor > 1 else y,
+            np.mean([r.motion_offsets for r in responses], axis=0))

@@ -50,6 +50,7 @@ from scipy.linalg import solve_triangular
 from fnsi.errors import json_float
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement, NonlinearityKind
+from fnsi.offsets import motion_mean
 from fnsi.simulation import SimulationDivergedError, element_incidence, simulate_periodic
 from fnsi.spectra import INTEGRATIONS, kept_record, measured_excitation, period_mean
 from fnsi.statespace import StateSpaceModel
@@ -405,7 +406,7 @@ class _Problem:
 
     def __init__(self, start: StateSpaceModel, sizes: np.ndarray, u: np.ndarray,
                  y: np.ndarray, lines: np.ndarray, derivative: int,
-                 max_radius: float) -> None:
+                 max_radius: float, output_mean: np.ndarray | None = None) -> None:
         self.start = start
         self.max_radius = max_radius
         names = list(start.output_names)
@@ -414,6 +415,9 @@ class _Problem:
         self.layout = _Layout(sizes, start.B.shape[1], np.array(loop, dtype=np.int64),
                               gap_parameters(start.elements))
         self.other = np.array([k for k in range(len(names)) if k not in loop], dtype=np.int64)
+        # the mean the elements see (fnsi.offsets); the Jacobian leaves out how the
+        # offsets that keep it move with the parameters (a constant per element)
+        self.loop_mean = None if output_mean is None else output_mean[loop]
         self.P = element_incidence(start.elements, [names[k] for k in loop])   # (E, L)
         self.u = u                        # (R, N, m)
         self.N = u.shape[1]
@@ -446,7 +450,7 @@ class _Problem:
                for g in e.gaps):
             raise SimulationDivergedError("a clearance gap reached zero")
         state = {"theta": theta, "A": A, "B": B, "CL": CL, "DL": DL, "E": [], "bases": [],
-                 "elements": elements, "motion": []}
+                 "elements": elements, "motion": [], "offsets": []}
         loop_names = tuple(self.start.output_names[k] for k in self.layout.loop)
         if elements:
             loop_model = StateSpaceModel(A=A, B=B, C=CL, D=DL, fs=self.start.fs,
@@ -457,12 +461,14 @@ class _Problem:
                 # start from the last steady state: models of nearby parameters settle
                 # in two periods instead of a transient's worth
                 response = simulate_periodic(loop_model, self.u[r],
-                                             initial_state=self._warm.get(r))
+                                             initial_state=self._warm.get(r),
+                                             output_mean=self.loop_mean)
                 self._warm[r] = response.final_state
                 self.simulations += 1
                 g, gx, gv = self._bases(response.motion, elements)
                 state["bases"].append((g, gx, gv))
                 state["motion"].append(response.motion)
+                state["offsets"].append(response.motion_offsets)
                 e_t = np.concatenate([self.u[r], g], axis=1)
             else:
                 e_t = self.u[r]
@@ -742,7 +748,9 @@ class _Problem:
         return StateSpaceModel(A=state["A"], B=state["B"].copy(), C=C, D=D, fs=self.start.fs,
                                input_names=self.start.input_names,
                                output_names=self.start.output_names,
-                               elements=state["elements"])
+                               elements=state["elements"],
+                               motion_offsets=(np.mean(state["offsets"], axis=0)
+                                               if state["offsets"] else None))
 
     def _gap_slopes(self, state: dict, motion: np.ndarray) -> np.ndarray:
         """dg/d(gap) at the simulated motion for every gap parameter, (N, s, gaps):
@@ -904,7 +912,8 @@ def refine(model: StateSpaceModel, measurement: Measurement, *, discard_periods:
     max_radius = float(np.exp(np.log(1e-6) / (SETTLE_PERIODS * N)))
     modal, sizes = real_modal_form(model)
     modal = reflect_unstable_poles(modal, sizes, max_radius)
-    problem = _Problem(modal, sizes, u, y, lines, INTEGRATIONS[data.quantity], max_radius)
+    problem = _Problem(modal, sizes, u, y, lines, INTEGRATIONS[data.quantity], max_radius,
+                       motion_mean(data, discard_periods))
     # closed-loop sensitivities of one realisation: open-loop forcing (complex on half the
     # lines, then real with the velocities), the bases' changes and their spectra
     elements, n_basis = problem.P.shape[0], problem.basis_element.size

@@ -114,7 +114,8 @@ def _solve_in_place(J, r):
 
 @numba.njit(cache=True)
 def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_offsets,
-               basis_offsets, P, M, implicit, max_iterations, tolerance, limit, y_out, z_out):
+               basis_offsets, P, M, shift, implicit, max_iterations, tolerance, limit, y_out,
+               z_out):
     """Run the recursion over the rows of ``u[:-1]``; ``u[-1]`` is u after the record.
 
     Per step, the relative displacements (and velocities, when M has 2E rows)
@@ -150,6 +151,8 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
         y[:] = y_hat
         if n_basis > 0:
             _product(P, y_hat, z_hat, False)    # P: (E, l) dof - ref incidence
+            for e in range(n_elements):
+                z_hat[e] += shift[e]
             if n_z > n_elements:
                 _product(C, x_next, y_next, False)
                 _product(Du, u[k + 1], y_next, True)
@@ -260,6 +263,9 @@ class PeriodicResponse:
     motion : ndarray, shape (period_length, E) or (period_length, 2E)
         Relative displacement (then relative velocity, for velocity-dependent bases) of
         every element at each step of the last period, as the bases saw them.
+    motion_offsets : ndarray, shape (E,)
+        Constant the relative displacements were shifted by in the last period
+        (:attr:`fnsi.statespace.StateSpaceModel.motion_offsets`).
     """
 
     y: np.ndarray
@@ -267,6 +273,7 @@ class PeriodicResponse:
     steady_state_change: float
     final_state: np.ndarray
     motion: np.ndarray
+    motion_offsets: np.ndarray
 
 
 def _input_record(model: StateSpaceModel, u: np.ndarray) -> np.ndarray:
@@ -340,6 +347,14 @@ class _Simulator:
             Mv = P @ (C @ Bg + (Dg if self.implicit else 0.0)) * (0.5 * model.fs)
             M = np.vstack((M, Mv))
         self.P = np.ascontiguousarray(P)
+        # added to the relative displacements (StateSpaceModel.motion_offsets)
+        self.shift = np.zeros(P.shape[0])
+        if model.motion_offsets is not None:
+            offsets = np.asarray(model.motion_offsets, dtype=float)
+            if offsets.shape != self.shift.shape or not np.all(np.isfinite(offsets)):
+                raise ValueError(f"motion_offsets must hold {self.shift.size} finite values, "
+                                 f"one per element; got shape {offsets.shape}")
+            self.shift[:] = offsets
         self.M = np.ascontiguousarray(M)
         self.max_iterations = max_iterations
         self.tolerance = tolerance
@@ -348,6 +363,18 @@ class _Simulator:
         self.y_prev = np.zeros(model.n_outputs)
         self.g = np.zeros(n_basis)
         self.motion = np.zeros((0, self.M.shape[0]))   # relative motions of the last run
+
+    def static_gain(self) -> np.ndarray:
+        """Static response of the elements' relative displacements to their bases,
+        P (C (I - A)^-1 B^e_nl + D^e_nl) (E, s) (without D^e_nl when it is explicit: the
+        bases then see the linear part's output); infinite without a static response
+        (a pole at z = 1)."""
+        A, _, Bg, C, _, Dg = self.matrices
+        try:
+            gain = C @ np.linalg.solve(np.eye(A.shape[0]) - A, Bg)
+        except np.linalg.LinAlgError:
+            return np.full((self.P.shape[0], Bg.shape[1]), np.inf)
+        return self.P @ (gain + Dg if self.implicit else gain)
 
     def run(self, u_extended: np.ndarray, start: int) -> np.ndarray:
         """Outputs for ``u_extended[:-1]``; ``start`` is the first sample's global index.
@@ -359,7 +386,7 @@ class _Simulator:
         self.motion = np.zeros((y.shape[0], self.M.shape[0]))
         status, k = _step_loop(
             *self.matrices, u_extended, self.x, self.y_prev, self.g,
-            float(self.model.fs), *self.tables, self.P, self.M, self.implicit,
+            float(self.model.fs), *self.tables, self.P, self.M, self.shift, self.implicit,
             self.max_iterations, self.tolerance, self.limit, y, self.motion,
         )
         t = (start + k) / self.model.fs
@@ -497,6 +524,43 @@ def _from_periodic_state(simulator: _Simulator, extended: np.ndarray, samples: i
     return simulator.run(extended, index), end
 
 
+SHIFT_SETTLED = 1e-3
+"""Period-to-period change (relative RMS) below which a period's mean motion is taken as
+its steady state's and the elements' offsets are moved (:func:`_shift_towards`): a shift
+changes the mean forces, whose transient (a lightly damped mode rings for many periods)
+would otherwise be taken for the response to the new offsets."""
+
+
+def _shift_towards(simulator: _Simulator, target: np.ndarray, tolerance: float) -> None:
+    """Move the offsets of the elements' relative displacements (``simulator.shift``)
+    by a Newton step towards those with which the last period's mean motion is
+    ``target`` (E,).
+
+    The mean motion m = shift + P G mean(g) also moves with the mean forces, which
+    follow m: dm = dshift + P G S dm, so dm/dshift = (I - P G S)^-1, with P G the static
+    response of the elements' relative displacements to their bases (E, s) and S (s, E)
+    each basis' mean slope along the last period's motion. A restoring element makes
+    P G S negative, so the plain step (dm/dshift taken as I) converges, but at the rate
+    P G S / (P G S - 1): slowly for a contact much stiffer than the structure's static
+    stiffness at its location. A static gain without bound (a pole at z = 1) takes the
+    plain step.
+    """
+    model, n_elements = simulator.model, target.size
+    motion = simulator.motion
+    residual = target - motion[:, :n_elements].mean(axis=0)
+    if np.all(np.abs(residual) <= tolerance * motion[:, :n_elements].std(axis=0)):
+        return
+    slopes = np.zeros((simulator.M.shape[1], n_elements))
+    start = 0
+    for e, element in enumerate(model.elements):
+        v = motion[:, n_elements + e] if motion.shape[1] > n_elements else None
+        gx = element.basis_slopes(motion[:, e], v)[0]
+        slopes[start: start + element.n_basis, e] = gx.mean(axis=0)
+        start += element.n_basis
+    step = residual - simulator.static_gain() @ slopes @ residual
+    simulator.shift += step if np.all(np.isfinite(step)) else residual
+
+
 def simulate_periodic(
     model: StateSpaceModel,
     u_period: np.ndarray,
@@ -509,6 +573,7 @@ def simulate_periodic(
     limit_factor: float = 1e3,
     initial_state: np.ndarray | None = None,
     corrections: int = 1,
+    output_mean: np.ndarray | None = None,
 ) -> PeriodicResponse:
     """Steady-state response to a periodic input.
 
@@ -537,6 +602,15 @@ def simulate_periodic(
     initial_state : ndarray, shape (n,), optional
         State to start from instead of rest, e.g. the ``final_state`` of a nearby
         model's steady state: the transient, and so the periods simulated, shrink.
+    output_mean : ndarray, shape (l,), optional
+        For a model without ``motion_offsets``: the mean of the outputs as the elements
+        were identified on them [output unit] (:func:`fnsi.offsets.motion_mean`). After
+        each period the relative displacements the bases see are shifted by a constant
+        that gives them the mean of these outputs instead of the model's own 0 Hz
+        response, which FNSI never identifies (:mod:`fnsi.offsets`); the shift found is
+        ``PeriodicResponse.motion_offsets``. It is a fixed-point step like the
+        corrections: a restoring element's mean force opposes it, so it converges.
+        None, or a model with offsets: the model's offsets (or none) throughout.
     corrections : int
         Periods after which the state is moved to the linear part's periodic state
         (1: after the first only). With elements the forces of the period just run are
@@ -585,7 +659,11 @@ def simulate_periodic(
     outputs = [simulator.run(extended, 0)]
     change = np.inf
     last_correction = 0
+    target = (None if output_mean is None or model.motion_offsets is not None
+              else simulator.P @ np.asarray(output_mean, dtype=float))
     for run in range(1, max_periods):
+        if target is not None and change <= SHIFT_SETTLED:
+            _shift_towards(simulator, target, tolerance)
         if run <= corrections and (run == 1 or change > tolerance):
             period, start = _from_periodic_state(simulator, extended, n, start, run * n)
             last_correction = run
@@ -599,7 +677,7 @@ def simulate_periodic(
             return PeriodicResponse(
                 y=np.concatenate(outputs[-periods:]), periods_run=run + 1,
                 steady_state_change=change, final_state=simulator.x.copy(),
-                motion=simulator.motion,
+                motion=simulator.motion, motion_offsets=simulator.shift.copy(),
             )
     raise NoSteadyStateError(
         f"no periodic steady state after {max_periods} periods (last period-to-period "

@@ -415,12 +415,11 @@ def modal_contributions(A: np.ndarray, B: np.ndarray, C: np.ndarray, fs: float,
     total = np.where(total > 0, total, np.inf)
     poles = (-modes.damping_ratios + 1j * np.sqrt(1 - modes.damping_ratios ** 2)) \
         * 2 * np.pi * modes.frequencies
-    shares = np.zeros(modes.n_modes)
-    for k, pole in enumerate(np.exp(poles / fs)):
-        pair = [int(np.argmin(np.abs(lam - pole))), int(np.argmin(np.abs(lam - pole.conjugate())))]
-        power = np.sum(np.abs(terms[..., pair].sum(axis=3)) ** 2, axis=(0, 1))
-        shares[k] = np.mean(power / total)
-    return shares
+    z_modes = np.exp(poles / fs)[:, None]
+    upper = np.argmin(np.abs(lam[None, :] - z_modes), axis=1)         # (n_modes,)
+    lower = np.argmin(np.abs(lam[None, :] - z_modes.conj()), axis=1)
+    power = np.sum(np.abs(terms[..., upper] + terms[..., lower]) ** 2, axis=(0, 1))  # (l, modes)
+    return np.mean(power / total[:, None], axis=0)
 
 
 #: Fraction of the tracking tolerances (:class:`StabilisationTolerances` frequency and
@@ -910,6 +909,7 @@ def stabilisation_diagram(
     confirmation: int = 1,
     contributions: Callable[[int, ModalTable], np.ndarray] | None = None,
     min_contribution: float = 1e-2,
+    choose: bool = True,
 ) -> StabilisationDiagram:
     """Build the stabilisation diagram from one subspace decomposition.
 
@@ -953,6 +953,9 @@ def stabilisation_diagram(
         for the orders the choice needs. None: poles are judged by the diagram alone.
     min_contribution : float
         Smallest share of a physical pole, see :func:`choose_order`.
+    choose : bool
+        Choose the automatic order (False: ``auto_order`` None, no contribution
+        evaluated; :func:`order_chosen` chooses it later).
 
     Returns
     -------
@@ -1006,16 +1009,27 @@ def stabilisation_diagram(
                    spectral_radius=radius)
         for j, (order, modes, confirmed, span, radius) in enumerate(
             zip(chosen, tables, flags, spans, radii, strict=True)))
+    diagram = StabilisationDiagram(
+        orders=chosen, poles=poles, band=band, tolerances=tolerances,
+        persistence=persistence, confirmation=confirmation, min_contribution=min_contribution)
+    return order_chosen(diagram, contributions) if choose else diagram
+
+
+def order_chosen(diagram: StabilisationDiagram,
+                 contributions: Callable[[int, ModalTable], np.ndarray] | None = None
+                 ) -> StabilisationDiagram:
+    """The diagram with its automatic order (:func:`choose_order`) and the contributions
+    of the orders the choice evaluated (``contributions`` as in
+    :func:`stabilisation_diagram`)."""
     shares: dict[int, np.ndarray] = {}
 
     def share(order: int) -> np.ndarray:
-        shares[order] = contributions(order, poles[chosen.index(order)].modes)
+        shares[order] = contributions(order, diagram.at(order).modes)
         return shares[order]
 
-    auto_order = choose_order(poles, band, None if contributions is None else share,
-                              min_contribution, tolerances)
-    poles = tuple(replace(p, contributions=shares.get(p.order)) for p in poles)
-    return StabilisationDiagram(
-        orders=chosen, poles=poles, band=band, tolerances=tolerances,
-        persistence=persistence, confirmation=confirmation, auto_order=auto_order,
-        min_contribution=min_contribution)
+    auto_order = choose_order(diagram.poles, diagram.band,
+                              None if contributions is None else share,
+                              diagram.min_contribution, diagram.tolerances)
+    return replace(diagram, auto_order=auto_order,
+                   poles=tuple(replace(p, contributions=shares.get(p.order))
+                               for p in diagram.poles))

@@ -43,6 +43,15 @@ class StateSpaceModel:
         Names of the l outputs.
     elements : tuple of NonlinearElement
         Nonlinear elements whose basis functions form the last s extended inputs.
+    motion_offsets : ndarray, shape (E,), optional
+        Constant added to each element's relative displacement when the model is
+        simulated [output unit]: the one with which the elements see, on the estimation
+        record, the mean they were identified on (:mod:`fnsi.offsets`). FNSI never
+        identifies 0 Hz, so the model's own static response to the forces' mean is an
+        extrapolation; with the offsets a record whose mean force differs still shifts
+        the motion by the model's static response to the difference. None: the
+        simulation finds the offsets on the record it simulates when told the mean
+        (:func:`fnsi.simulation.simulate_periodic`), else uses none.
     """
 
     A: np.ndarray
@@ -53,6 +62,7 @@ class StateSpaceModel:
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
     elements: tuple[NonlinearElement, ...] = ()
+    motion_offsets: np.ndarray | None = None
 
     @property
     def order(self) -> int:
@@ -116,10 +126,12 @@ class StateSpaceModel:
 
         Reload with :meth:`from_npz`; nothing in the file needs unpickling.
         """
+        offsets = {} if self.motion_offsets is None else {"motion_offsets": self.motion_offsets}
         np.savez(file, A=self.A, B=self.B, C=self.C, D=self.D, fs=np.float64(self.fs),
                  input_names=np.array(self.input_names, dtype=str),
                  output_names=np.array(self.output_names, dtype=str),
-                 elements=np.str_(json.dumps([e.to_json() for e in self.elements])))
+                 elements=np.str_(json.dumps([e.to_json() for e in self.elements])),
+                 **offsets)
 
     @classmethod
     def from_npz(cls, file: str | Path | BinaryIO) -> StateSpaceModel:
@@ -141,7 +153,8 @@ class StateSpaceModel:
                        tuple(data["input_names"].tolist()),
                        tuple(data["output_names"].tolist()),
                        tuple(NonlinearElement.from_json(e)
-                             for e in json.loads(str(data["elements"]))))
+                             for e in json.loads(str(data["elements"]))),
+                       data["motion_offsets"] if "motion_offsets" in data.files else None)
 
     def to_json(self) -> dict:
         """JSON-ready matrices (nested lists), names, fs and elements."""
@@ -151,6 +164,8 @@ class StateSpaceModel:
             "input_names": list(self.input_names),
             "output_names": list(self.output_names),
             "elements": [e.to_json() for e in self.elements],
+            "motion_offsets": (None if self.motion_offsets is None
+                               else self.motion_offsets.tolist()),
             "A": self.A.tolist(), "B": self.B.tolist(),
             "C": self.C.tolist(), "D": self.D.tolist(),
         }

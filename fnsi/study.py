@@ -513,7 +513,7 @@ class Study:
 
     # -- revisions -------------------------------------------------------------------------
     def evaluate(self, elements: Sequence[NonlinearElement], order: int | str,
-                 progress: Progress | None = None, *, uncertainty: bool = True,
+                 progress: Progress | None = None, *, trial: bool = False,
                  refine: bool | None = None, refine_iterations: int | None = None,
                  order_near: int | None = None) -> Evaluation:
         """Identify a model on the estimation data and run it on the validation data.
@@ -522,9 +522,11 @@ class Study:
         is given up (:data:`REPAIRS`, each named in ``Evaluation.repairs``): unstable
         poles are reflected inside the unit circle (same frequency, B and D fitted
         again), and an output equation that folds is solved explicitly. A model still not
-        simulable is returned with ``failure`` set instead of raising. ``uncertainty``
-        False skips the standard deviations of its modes and coefficients (trial models
-        of the diagnosis, of which only the errors count); ``refine`` overrides the
+        simulable is returned with ``failure`` set instead of raising. A ``trial`` model
+        of the diagnosis, of which only the errors count, skips the standard deviations
+        of its modes and coefficients and the modal order its simulated order makes
+        unneeded (``modal_order`` of :func:`fnsi.identification.identify`); ``refine``
+        overrides the
         study's ``settings.refine``, ``refine_iterations`` the refinement's most steps,
         ``order_near`` is where the search of an ``"auto"`` order starts (the order of
         the model with one element fewer; :func:`fnsi.identification.identify`).
@@ -532,13 +534,14 @@ class Study:
         elements = tuple(elements)
         settings = replace(self.settings, elements=elements, order=order,
                            order_rule="simulation", harmonic_band=True,
-                           uncertainty=uncertainty and self.settings.uncertainty,
+                           uncertainty=not trial and self.settings.uncertainty,
                            refine=self.settings.refine if refine is None else refine)
         report = progress or (lambda fraction, message: None)
         # reflection changes nothing in a stable model, so it costs nothing to ask for
         result = identify(self.estimation, replace(settings, harmonic_band=False),
                           lambda f, m: report(0.45 * f, m), reflect_unstable=True,
-                          refine_iterations=refine_iterations, order_near=order_near)
+                          refine_iterations=refine_iterations, order_near=order_near,
+                          modal_order=not trial)
         if elements and order == "auto":
             # the band with its harmonics too, kept if it simulates the estimation data
             # better (a ValueError: e.g. no order of the wider fit can be simulated)
@@ -546,7 +549,7 @@ class Study:
                 result = _better_simulating(result, identify(
                     self.estimation, settings, lambda f, m: report(0.45 + 0.45 * f, m),
                     reflect_unstable=True, refine_iterations=refine_iterations,
-                    order_near=result.order))
+                    order_near=result.order, modal_order=not trial))
         repairs = (("unstable poles reflected inside the unit circle, B and D fitted "
                     "again",) if any("were reflected inside" in w for w in result.warnings)
                    else ())
@@ -616,14 +619,14 @@ class Study:
         return math.isfinite(floor) and nrmse > factor * floor
 
     def better_refined(self, evaluation: Evaluation, progress: Progress | None = None, *,
-                       uncertainty: bool = True, iterations: int | None = None
+                       trial: bool = False, iterations: int | None = None
                        ) -> Evaluation:
         """``evaluation`` (FNSI's model) or the same model refined by its simulation
         error, whichever validates better; the refinement is named in its repairs
-        (``uncertainty`` as in :meth:`evaluate`, ``iterations`` its most steps)."""
+        (``trial`` as in :meth:`evaluate`, ``iterations`` its most steps)."""
         error, floor = evaluation.nrmse_percent, self.noise_floor_percent
         refined = self.evaluate(evaluation.elements, evaluation.order, progress, refine=True,
-                                uncertainty=uncertainty, refine_iterations=iterations)
+                                trial=trial, refine_iterations=iterations)
         if not refined.nrmse_percent < error:
             return evaluation
         return replace(refined, repairs=(*refined.repairs, (
@@ -714,7 +717,7 @@ class Study:
         # the curve comes from FNSI's coefficients, which refinement leaves as they are
         settings = replace(self.settings, elements=(*parent.elements, element),
                            order=parent.identified_order, refine=False, uncertainty=False)
-        result = identify(self.estimation, settings)
+        result = identify(self.estimation, settings, modal_order=False)
         curves = [c for c in result.stiffness if c.element.dof == element.dof
                   and c.element.ref == element.ref and c.element.kind == element.kind]
         return curves[-1] if curves else None
@@ -786,6 +789,8 @@ class Study:
             key = f"r{r.number}_"
             for name in ("A", "B", "C", "D"):
                 arrays[key + name] = getattr(r.model, name)
+            if r.model.motion_offsets is not None:
+                arrays[key + "motion_offsets"] = r.model.motion_offsets
             if r.errors is not None:
                 arrays[key + "simulated"] = r.simulated
                 arrays[key + "excited"] = r.excited
@@ -922,7 +927,8 @@ def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study)
     model = StateSpaceModel(
         *(arrays[key + n] for n in ("A", "B", "C", "D")), fs=study.estimation.fs,
         input_names=tuple(inputs), output_names=tuple(names),
-        elements=tuple(NonlinearElement.from_json(e) for e in item["model_elements"]))
+        elements=tuple(NonlinearElement.from_json(e) for e in item["model_elements"]),
+        motion_offsets=arrays.get(key + "motion_offsets"))
     errors = excited = simulated = None
     if key + "simulated" in arrays:
         errors = ModelErrors(tuple(names), *(arrays[key + n] for n in _ERROR_ARRAYS))

@@ -14,7 +14,10 @@ sensor offsets, reported in :attr:`Comparison.offsets`) and the simulated output
 The input drives the model as the estimation saw it: without its offset when the model
 was identified with ``remove_offsets``; and as the structure received it, the average of
 the kept periods without the lines where the force sensor measured only its noise
-(:func:`fnsi.spectra.measured_excitation`).
+(:func:`fnsi.spectra.measured_excitation`). The elements' motion is shifted by the
+model's ``motion_offsets``; a model without them is given those with which its elements
+see the measurement's mean as the identification did (:func:`fnsi.offsets.motion_mean`):
+on the estimation record, where the identification finds them (:mod:`fnsi.offsets`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import numpy as np
 
 from fnsi.errors import ModelErrors, model_errors
 from fnsi.measurement import Measurement
-from fnsi.offsets import Offsets, remove_offsets
+from fnsi.offsets import Offsets, motion_mean, remove_offsets
 from fnsi.oversampling import simulate_oversampled
 from fnsi.spectra import INTEGRATIONS, integrate_periodic, kept_record, measured_excitation
 from fnsi.statespace import StateSpaceModel
@@ -61,11 +64,17 @@ class Comparison:
         the 0 Hz line.
     offsets : Offsets
         Sensor offsets removed from the measurement (:mod:`fnsi.offsets`).
+    motion_offsets : ndarray, shape (E,)
+        Offsets of the elements' relative displacements in the simulation: the model's
+        (:attr:`fnsi.statespace.StateSpaceModel.motion_offsets`), or, for a model
+        without them, those that gave the elements the measurement's mean
+        (:func:`fnsi.offsets.motion_mean`), averaged over the realisations.
     """
 
     simulated: np.ndarray
     errors: ModelErrors
     offsets: Offsets
+    motion_offsets: np.ndarray
 
 
 def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods: int,
@@ -118,14 +127,17 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     measured = kept_record(centred.y, data.periods, discard_periods)
     u = measured_excitation(kept_record((centred if offsets_removed else data).u, data.periods,
                                         discard_periods), data.periods - discard_periods)
-    periods = simulate_oversampled(model, u, band_high, oversampling, feedthrough, max_periods,
-                                   corrections)
+    # a model without offsets: the elements see the mean the identification saw
+    mean = motion_mean(centred if offsets_removed else data, discard_periods)
+    periods, motion_offsets = simulate_oversampled(model, u, band_high, oversampling,
+                                                   feedthrough, max_periods, corrections,
+                                                   output_mean=mean)
     simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
     simulated = simulated - simulated.mean(axis=1, keepdims=True)
     high = min(data.fs / 2, ERROR_BAND_FACTOR * band_high)
     errors = model_errors(measured, simulated, data.fs, periods=data.periods - discard_periods,
                           output_names=data.output_names, band=(0.0, high))
-    return Comparison(simulated, errors, offsets)
+    return Comparison(simulated, errors, offsets, motion_offsets)
 
 
 def compare_identified(result: IdentificationResult, measurement: Measurement,

@@ -130,15 +130,15 @@ def test_elements_are_judged_refined_against_the_refined_revision(cubic_case):
     revision = study.revisions[0]
     assert revision.nrmse_percent > 3.0 * revision.noise_floor_percent  # FNSI's, far off
     # the reference: the revision or its refinement (trial steps), whichever validates better
-    refined = study.evaluate([], revision.identified_order, uncertainty=False, refine=True,
+    refined = study.evaluate([], revision.identified_order, trial=True, refine=True,
                              refine_iterations=TRIAL_STEPS)
     reference = min(refined.nrmse_percent, revision.nrmse_percent)
     elements = [c for c in diagnosis.candidates if c.element is not None]
     assert all(c.claim.before == reference for c in elements)
     # each element's model: FNSI's or its refinement, whichever validates better
     top = diagnosis.candidates[0]
-    trial = (dataclasses.replace(top.element, coefficients=None),)
-    fnsi, refined_top = (study.evaluate(trial, top.order, uncertainty=False, refine=refine,
+    elements = (dataclasses.replace(top.element, coefficients=None),)
+    fnsi, refined_top = (study.evaluate(elements, top.order, trial=True, refine=refine,
                                         refine_iterations=TRIAL_STEPS)
                          for refine in (False, True))
     assert top.validation_nrmse_percent == min(fnsi.nrmse_percent, refined_top.nrmse_percent)

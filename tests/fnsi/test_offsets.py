@@ -122,3 +122,31 @@ def test_remove_offsets_needs_a_kept_period():
     m = Measurement.from_arrays(np.ones(8), np.ones(8), fs=8.0, periods=2)
     with pytest.raises(ValueError, match="discard_periods"):
         remove_offsets(m, 2)
+
+
+def test_a_stop_measured_in_velocity_simulates_with_the_mean_it_was_identified_on():
+    """A one-sided stop pushes the motion off centre; measured in velocity, that static
+    shift is not in the data: FNSI identifies the stop on the zero-mean displacement,
+    at the gap minus the shift. Simulated with the model's own 0 Hz response, the
+    elements saw the shift twice and the model validated at 2.56 % (7.1 times the
+    floor); with the offsets found on the estimation record, 0.66 % (1.8 times)."""
+    linear = measure(chain(), 1)
+    motion = kept_record(linear.y, linear.periods, 1)[0]
+    gap = 0.5 * np.std(motion[:, 3] - motion[:, 2])
+    stop = NonlinearElement("clearance", "x4", "x3", gap_positive=gap, side="positive",
+                            coefficients=(1e4,))
+    structure = chain(stop)
+    displacement = kept_record(measure(structure, 1).y, 4, 1)[0]
+    shift = np.mean(displacement[:, 3] - displacement[:, 2])     # -13 % of the gap
+    study = Study.create(measure(structure, 1, "velocity"), measure(structure, 2, "velocity"),
+                         SETTINGS)
+    centred = dataclasses.replace(stop, gap_positive=gap - shift, coefficients=None)
+    evaluation = study.evaluate([centred], SETTINGS.order, trial=True)
+    # 1.8 times measured; twice the floor is issue 21's target for the loop
+    assert evaluation.nrmse_percent < 2.0 * study.noise_floor_percent
+    # the model's own static response to the contact force reproduces the true shift,
+    # which the offsets cancel (0.5 % apart on the record)
+    offsets = evaluation.identification.model.motion_offsets
+    assert offsets[0] == pytest.approx(-shift, rel=0.05)
+    # FNSI's contact stiffness (0.8 % off)
+    assert evaluation.identification.coefficients[0].mean_real == pytest.approx(1e4, rel=0.03)

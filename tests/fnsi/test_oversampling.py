@@ -123,5 +123,5 @@ def test_linear_model_is_simulated_at_its_rate(identified):
                                     result.model.D[:, :1], FS, result.model.input_names,
                                     result.model.output_names)
     u = validation.u[:, -PERIOD:]
-    np.testing.assert_array_equal(simulate_oversampled(linear, u, BAND[1]),
+    np.testing.assert_array_equal(simulate_oversampled(linear, u, BAND[1])[0],
                                   simulate_periodic(linear, u[0]).y[None])

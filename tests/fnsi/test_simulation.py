@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import optimize, signal
@@ -363,3 +365,38 @@ def test_stiff_smallsat_contact_simulates_to_the_floor_with_its_out_of_band_dyna
     # observed 240-410 x the floor here (25-35 x on 5 s periods): in-band modes alone
     # cannot meet issue 7's 3 x
     assert np.all(errors[8].nrmse_percent > 10 * floor)
+
+
+STOP_GAP = 0.01              # m, a positive-side stop at about a third of the peak motion
+
+
+def _stop_model(gap: float, **fields) -> StateSpaceModel:
+    """The SDOF with a one-sided stop as stiff as its spring (unit mass)."""
+    stop = NonlinearElement("clearance", "q", gap_positive=gap, side="positive")
+    return dataclasses.replace(_sdof(OMEGA**2, elements=(stop,)), **fields)
+
+
+def test_motion_offsets_shift_the_motion_the_elements_see(force):
+    # a positive-side stop at gap g seeing q + o engages where one at g - o sees q
+    u = force[:1000]
+    shifted = simulate(_stop_model(STOP_GAP, motion_offsets=np.array([0.004])), u)
+    moved = simulate(_stop_model(STOP_GAP - 0.004), u)
+    assert np.max(np.abs(shifted)) > 1.5 * STOP_GAP     # the stop is engaged
+    np.testing.assert_allclose(shifted, moved, rtol=0, atol=1e-12 * np.abs(moved).max())
+
+
+def test_the_output_mean_is_what_the_elements_see_and_the_offsets_keep_it(force):
+    # the stop pushes the motion to a negative mean by itself (15 % of its RMS); asked
+    # for mean 0, the elements see the motion shifted to it, and a model given the
+    # offsets found reproduces that steady state without being told the mean
+    u = force[:500]
+    steady = {"tolerance": 1e-9, "corrections": 30}
+    own = simulate_periodic(_stop_model(STOP_GAP), u, **steady)
+    assert own.motion[:, 0].mean() < -0.05 * own.motion[:, 0].std()
+    centred = simulate_periodic(_stop_model(STOP_GAP), u, output_mean=np.zeros(1), **steady)
+    assert abs(centred.motion[:, 0].mean()) < 1e-6 * centred.motion[:, 0].std()
+    assert centred.motion_offsets[0] > 0.0
+    frozen = simulate_periodic(_stop_model(STOP_GAP, motion_offsets=centred.motion_offsets),
+                               u, output_mean=np.full(1, 1.0), **steady)  # ignored
+    np.testing.assert_allclose(frozen.y, centred.y, rtol=0,
+                               atol=1e-7 * np.abs(centred.y).max())
