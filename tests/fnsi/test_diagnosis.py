@@ -28,6 +28,7 @@ import pytest
 from fnsi.acquisition import acquire
 from fnsi.claim import claim_test
 from fnsi.diagnosis import (
+    MAX_FRICTION_WIDTH,
     MAX_KIND_LOCATIONS,
     TRIAL_STEPS,
     Candidate,
@@ -38,6 +39,7 @@ from fnsi.diagnosis import (
     LocationScore,
     Proposal,
     _complement,
+    _friction_proposal,
     _simplest_clearance,
     _summary,
     added_parameters,
@@ -156,6 +158,21 @@ def test_coulomb_friction_between_two_dofs():
     # Sliding force within 10 %: the smoothing width is only searched on a log grid.
     assert abs(top.element.coefficients[0]) == pytest.approx(3.0, rel=0.1)
     assert_fixed(study)
+
+
+def test_a_friction_candidate_saturates_over_most_of_the_motion():
+    # data with a viscous damper between x2 and x3 that the revision lacks: a tanh as
+    # wide as the motion is that damper (unbounded, the width fitting best was the
+    # whole RMS velocity), and the revision's linear part is where it belongs
+    structure = chain()
+    damper = 10.0 * np.outer([0, 1, -1, 0, 0], [0, 1, -1, 0, 0])        # N s/m
+    damped = StructuralModel(structure.M, structure.C + damper, structure.K, NAMES, ())
+    problem = ScreeningProblem(measure(damped, 1), linear_study().revisions[0].model, BAND,
+                               SETTINGS.discard_periods)
+    location = Location("x2", "x3")
+    _, v = problem.motion.relative(location.dof, location.ref)
+    proposal = _friction_proposal(problem, location)
+    assert proposal.element.width <= MAX_FRICTION_WIDTH * np.sqrt(np.mean(v**2)) * (1 + 1e-9)
 
 
 def test_quadratic_damper_to_ground():
