@@ -849,7 +849,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     notes: tuple[str, ...] = ()
     if settings.order == "auto" or reflect_unstable:
         model, notes = _stabilised(model, decomposition)
-    model = _with_motion_offsets(model, data, settings)
+    if not settings.refine:   # a refinement finds the offsets of the model it keeps
+        model = _with_motion_offsets(model, data, settings)
     clock.done("model", 0.85, "B and D estimated")
     result = dataclasses.replace(
         _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
@@ -873,7 +874,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
                             progress=None if progress is None else
                             lambda f, m: progress(0.9 + 0.1 * f, m))
     except ValueError as error:    # FNSI's model stands; the result says why
-        refinement = Refinement.refused(result.model, str(error))
+        refinement = Refinement.refused(_with_motion_offsets(result.model, data, settings),
+                                        str(error))
     clock.done("refinement", 1.0, refinement.summary)
     return dataclasses.replace(result, model=refinement.model, refinement=refinement)
 

@@ -432,7 +432,7 @@ class _Problem:
             if start.elements else np.zeros(0, dtype=np.int64)
         self.velocity = any(e.needs_velocity for e in start.elements)
         self.simulations = 0
-        self._warm: dict[int, np.ndarray] = {}
+        self._warm: dict[int, tuple[np.ndarray, np.ndarray]] = {}   # state, offsets
         self._cache: tuple[bytes, dict] | None = None
 
     # one evaluation: simulate, project, keep what the Jacobian needs
@@ -460,10 +460,11 @@ class _Problem:
             if self.start.elements:
                 # start from the last steady state: models of nearby parameters settle
                 # in two periods instead of a transient's worth
-                response = simulate_periodic(loop_model, self.u[r],
-                                             initial_state=self._warm.get(r),
-                                             output_mean=self.loop_mean)
-                self._warm[r] = response.final_state
+                warm = self._warm.get(r, (None, None))
+                response = simulate_periodic(loop_model, self.u[r], initial_state=warm[0],
+                                             output_mean=self.loop_mean,
+                                             initial_offsets=warm[1])
+                self._warm[r] = (response.final_state, response.motion_offsets)
                 self.simulations += 1
                 g, gx, gv = self._bases(response.motion, elements)
                 state["bases"].append((g, gx, gv))

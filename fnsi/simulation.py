@@ -23,6 +23,12 @@ penetration, so contact forces deflect the connection within the same sample.
   the softening sign, where the implicit equation can lose its solution (a fold: e.g. a
   cubic basis once 3 P D^e_nl x^2 > 1); the simulation then reports it.
 
+Mean motion. FNSI never identifies 0 Hz, so the model's static response to its
+elements' mean force is an extrapolation: the relative displacements the elements see
+are shifted by the model's ``motion_offsets``, those with which they see, on the
+estimation record, the mean they were identified on (:mod:`fnsi.offsets`;
+``output_mean`` of :func:`simulate_periodic` finds them).
+
 Velocity-dependent bases. FNSI identifies displacements. The relative velocity is the
 central difference v[k] = (y[k+1] - y[k-1]) fs / 2 of the simulated outputs (second-order
 accurate, no phase lag, unlike a backward difference), with y[k+1] predicted as
@@ -121,7 +127,8 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
     Per step, the relative displacements (and velocities, when M has 2E rows)
     z = [x_e; v_e] of the E elements solve z = z_hat + M g(z) by Newton's method (one
     evaluation when M = 0), with z_hat their value without the nonlinear terms of this
-    step and M the sensitivity of z to the bases (module docstring). ``x``, ``y_prev``
+    step and M the sensitivity of z to the bases (module docstring); ``shift`` (E,) is
+    added to the relative displacements (the model's motion offsets). ``x``, ``y_prev``
     (the output before the first sample, for the central difference) and ``g`` are
     updated in place so that a following call continues seamlessly; ``z_out`` receives z
     at every step. Returns (status, sample index).
@@ -574,6 +581,7 @@ def simulate_periodic(
     initial_state: np.ndarray | None = None,
     corrections: int = 1,
     output_mean: np.ndarray | None = None,
+    initial_offsets: np.ndarray | None = None,
 ) -> PeriodicResponse:
     """Steady-state response to a periodic input.
 
@@ -611,6 +619,9 @@ def simulate_periodic(
         ``PeriodicResponse.motion_offsets``. It is a fixed-point step like the
         corrections: a restoring element's mean force opposes it, so it converges.
         None, or a model with offsets: the model's offsets (or none) throughout.
+    initial_offsets : ndarray, shape (E,), optional
+        Offsets to start that search from, e.g. the ``motion_offsets`` of a nearby
+        model's steady state (with ``initial_state``).
     corrections : int
         Periods after which the state is moved to the linear part's periodic state
         (1: after the first only). With elements the forces of the period just run are
@@ -661,6 +672,8 @@ def simulate_periodic(
     last_correction = 0
     target = (None if output_mean is None or model.motion_offsets is not None
               else simulator.P @ np.asarray(output_mean, dtype=float))
+    if target is not None and initial_offsets is not None:
+        simulator.shift[:] = initial_offsets
     for run in range(1, max_periods):
         if target is not None and change <= SHIFT_SETTLED:
             _shift_towards(simulator, target, tolerance)
