@@ -51,10 +51,13 @@ proposed.
 
 from __future__ import annotations
 
+import functools
 import math
+import os
 import re
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import TYPE_CHECKING
@@ -195,6 +198,9 @@ class DiagnosisSettings:
         Spline intervals of those curves.
     include_missing_mode : bool
         Validate the revision with two more states (one more linear mode).
+    workers : int
+        Candidates validated at the same time, in threads (default: the CPUs this
+        process may use, at most 4). Their results do not depend on it.
     """
 
     screening_intervals: int = 8
@@ -203,12 +209,13 @@ class DiagnosisSettings:
     curve_locations: int = 1
     curve_intervals: int = 12
     include_missing_mode: bool = True
+    workers: int = field(default_factory=lambda: min(4, len(os.sched_getaffinity(0))))
 
     def __post_init__(self) -> None:
         for name in ("screening_intervals", "curve_intervals"):
             if getattr(self, name) < 2:
                 raise ValueError(f"{name} must be at least 2 spline intervals")
-        for name in ("top_locations", "validated_candidates"):
+        for name in ("top_locations", "validated_candidates", "workers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1")
         if self.curve_locations < 0:
@@ -1456,15 +1463,22 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     # model misses the floor); one more mode stays FNSI's, as a linear revision does
     elements_judge = _reference(study, index, judge, notes)
     by_location = {s.location: s for s in scores}
-    candidates = []
-    for count, proposal in enumerate(chosen):
-        report(0.4 + 0.6 * (settings.curve_locations + count) / steps,
-               f"validating {proposal.effect} {proposal.location.phrase}")
-        candidates.append(_validate(study, index, proposal, elements_judge,
-                                    by_location.get(proposal.location)))
+    trials = [functools.partial(_validate, study, index, proposal, elements_judge,
+                                by_location.get(proposal.location)) for proposal in chosen]
     if settings.include_missing_mode:
-        report(0.4 + 0.6 * (steps - 1) / steps, "validating one more linear mode")
-        candidates.append(_validate_mode(study, index, judge))
+        trials.append(functools.partial(_validate_mode, study, index, judge))
+    names = [f"{p.effect} {p.location.phrase}" for p in chosen] + ["one more linear mode"]
+    candidates = []
+    # each trial is an identification and simulations of its own, most of it in
+    # compiled code and LAPACK that release the interpreter: validated side by side
+    pool = ThreadPoolExecutor(max_workers=settings.workers)
+    try:
+        for count, future in enumerate([pool.submit(trial) for trial in trials]):
+            candidates.append(future.result())
+            report(0.4 + 0.6 * (settings.curve_locations + count) / steps,
+                   f"validated {names[count]}")
+    finally:   # a cancelled diagnosis (report raised) drops the trials not started
+        pool.shutdown(wait=True, cancel_futures=True)
     candidates = rank_candidates(candidates)
     if candidates and not candidates[0].convincing:
         report(0.99, "validating the best two effects together")

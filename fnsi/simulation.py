@@ -118,7 +118,7 @@ def _solve_in_place(J, r):
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_offsets,
                basis_offsets, P, M, shift, implicit, max_iterations, tolerance, limit, y_out,
                z_out):

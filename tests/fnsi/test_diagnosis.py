@@ -149,6 +149,20 @@ def test_elements_are_judged_refined_against_the_refined_revision(cubic_case):
     assert mode.claim.before == revision.nrmse_percent
 
 
+def test_candidates_validated_side_by_side_are_those_validated_one_by_one(cubic_case):
+    study, diagnosis = cubic_case
+    assert EFFORT.workers >= 1
+    alone = study.diagnose(0, settings=dataclasses.replace(EFFORT, workers=1))
+
+    def answers(d: Diagnosis) -> list:
+        return [(c.effect, c.location, c.order, c.validation_nrmse_percent, c.claim)
+                for c in d.candidates]
+
+    assert answers(alone) == answers(diagnosis)
+    with pytest.raises(ValueError, match="workers"):
+        DiagnosisSettings(workers=0)
+
+
 def test_coulomb_friction_between_two_dofs():
     study = linear_study(NonlinearElement("coulomb_friction", "x2", "x3", width=0.01,
                                           coefficients=(3.0,)))
