@@ -177,6 +177,14 @@ def candidate_locations(output_names: Sequence[str],
     return tuple(grounds + pairs)
 
 
+def _usable_cpus() -> int:
+    """CPUs this process may run on (its affinity where the system has one, as on Linux;
+    else every CPU, as on macOS and Windows)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 @dataclass(frozen=True)
 class DiagnosisSettings:
     """Effort of each stage of the diagnosis.
@@ -209,7 +217,7 @@ class DiagnosisSettings:
     curve_locations: int = 1
     curve_intervals: int = 12
     include_missing_mode: bool = True
-    workers: int = field(default_factory=lambda: min(4, len(os.sched_getaffinity(0))))
+    workers: int = field(default_factory=lambda: min(4, _usable_cpus()))
 
     def __post_init__(self) -> None:
         for name in ("screening_intervals", "curve_intervals"):

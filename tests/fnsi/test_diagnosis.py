@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import re
 from types import SimpleNamespace
 
@@ -161,6 +162,12 @@ def test_candidates_validated_side_by_side_are_those_validated_one_by_one(cubic_
     assert answers(alone) == answers(diagnosis)
     with pytest.raises(ValueError, match="workers"):
         DiagnosisSettings(workers=0)
+
+
+def test_the_default_workers_need_no_cpu_affinity(monkeypatch):
+    # macOS and Windows have no os.sched_getaffinity: every CPU, at most 4
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)
+    assert DiagnosisSettings().workers == min(4, os.cpu_count() or 1)
 
 
 def test_coulomb_friction_between_two_dofs():
