@@ -32,6 +32,7 @@ import numpy as np
 import scipy.linalg
 from numba import njit, prange
 
+from fnsi.gauss import solve_small
 from fnsi.nonlinear import element_force
 from fnsi.structure import StructuralModel
 
@@ -110,31 +111,6 @@ def _element_residual(x, x_lin, x_n, v_pred, cv, G, kinds, params, p0, coefs, c0
 
 
 @njit(cache=True)
-def _solve_small(J, b):
-    """Solve J y = b in place (b <- y) by Gaussian elimination with partial pivoting."""
-    n = b.shape[0]
-    for col in range(n):
-        pivot = col
-        for row in range(col + 1, n):
-            if abs(J[row, col]) > abs(J[pivot, col]):
-                pivot = row
-        if pivot != col:
-            for j in range(n):
-                J[col, j], J[pivot, j] = J[pivot, j], J[col, j]
-            b[col], b[pivot] = b[pivot], b[col]
-        for row in range(col + 1, n):
-            factor = J[row, col] / J[col, col]
-            for j in range(col, n):
-                J[row, j] -= factor * J[col, j]
-            b[row] -= factor * b[col]
-    for row in range(n - 1, -1, -1):
-        acc = b[row]
-        for j in range(row + 1, n):
-            acc -= J[row, j] * b[j]
-        b[row] = acc / J[row, row]
-
-
-@njit(cache=True)
 def _newton(x, x_lin, x_n, v_pred, cv, G, kinds, params, p0, coefs, c0, w, work, J):
     """Solve x - x_lin + G w(x) = 0 in place; return -1 or the element with largest residual."""
     s = x.shape[0]
@@ -156,7 +132,7 @@ def _newton(x, x_lin, x_n, v_pred, cv, G, kinds, params, p0, coefs, c0, w, work,
                 J[e, j] = G[e, j] * kx[j]
             J[e, e] += 1.0
             step[e] = -residual[e]
-        _solve_small(J, step)
+        solve_small(J, step)
         lam = 1.0
         for _halving in range(LINE_SEARCH_HALVINGS):
             for e in range(s):

@@ -44,6 +44,7 @@ import numba
 import numpy as np
 import scipy.linalg
 
+from fnsi.gauss import solve_small
 from fnsi.nonlinear import NonlinearElement, basis_value
 from fnsi.statespace import StateSpaceModel
 
@@ -86,36 +87,6 @@ def _product(M, x, out, accumulate):
         for j in range(M.shape[1]):
             total += M[i, j] * x[j]
         out[i] = total
-
-
-@numba.njit(cache=True)
-def _solve_in_place(J, r):
-    """Overwrite r with J^-1 r by Gaussian elimination with partial pivoting (J is
-    destroyed); False when J is singular. The Newton systems have one or two unknowns per
-    element."""
-    n = r.shape[0]
-    for c in range(n):
-        pivot = c
-        for i in range(c + 1, n):
-            if abs(J[i, c]) > abs(J[pivot, c]):
-                pivot = i
-        if J[pivot, c] == 0.0:
-            return False
-        if pivot != c:
-            for j in range(n):
-                J[c, j], J[pivot, j] = J[pivot, j], J[c, j]
-            r[c], r[pivot] = r[pivot], r[c]
-        for i in range(c + 1, n):
-            factor = J[i, c] / J[c, c]
-            for j in range(c, n):
-                J[i, j] -= factor * J[c, j]
-            r[i] -= factor * r[c]
-    for c in range(n - 1, -1, -1):
-        total = r[c]
-        for j in range(c + 1, n):
-            total -= J[c, j] * r[j]
-        r[c] = total / J[c, c]
-    return True
 
 
 @numba.njit(cache=True, nogil=True)
@@ -192,7 +163,7 @@ def _step_loop(A, Bu, Bg, C, Du, Dg, u, x, y_prev, g, fs, kinds, values, value_o
                             J[i, e] -= M[i, j] * gx[j]
                             if n_z > n_elements:
                                 J[i, n_elements + e] -= M[i, j] * gv[j]
-                if not _solve_in_place(J, residual):   # singular, exactly at a fold
+                if not solve_small(J, residual):   # singular, exactly at a fold
                     break
                 for i in range(n_z):
                     z[i] -= residual[i]
