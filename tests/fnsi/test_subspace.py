@@ -12,7 +12,14 @@ from fnsi.identification import IdentificationSettings, identify
 from fnsi.measurement import Measurement
 from fnsi.modal import modal_table
 from fnsi.spectra import Spectra, output_spectra, transform
-from fnsi.subspace import auto_block_rows, band_warp, decompose, input_matrices
+from fnsi.subspace import (
+    COMPENSATION_KEEP,
+    auto_block_rows,
+    band_warp,
+    compensation_scale,
+    decompose,
+    input_matrices,
+)
 
 FS, PERIOD, BAND = 200.0, 2000, (3.0, 45.0)
 
@@ -279,3 +286,27 @@ def test_compensated_least_squares_removes_input_noise_bias():
     # correlated-noise term (about 19 % error); compensated, only the scatter is left
     assert error["plain"] > 0.15
     assert error["compensated"] < 0.05  # 3 %, scatter falling as 1 / sqrt(N)
+
+
+def test_a_noise_estimate_above_the_basis_power_is_scaled_down_not_subtracted_whole():
+    """Few periods can estimate a basis' noise above its power: subtracted whole, the
+    normal matrix stops being positive and the coefficients come out NaN (a cubic spring
+    measured in acceleration with two kept periods did)."""
+    rng = np.random.default_rng(5)
+    G = np.cov(rng.standard_normal((6, 200)))
+    N = 1.5 * G                                   # more noise than power in every direction
+    alpha = compensation_scale(G, N)
+    kept = scipy.linalg.eigh(G - alpha * N, G, eigvals_only=True)
+    # what is left is COMPENSATION_KEEP of G in the worst direction, and no less
+    assert kept.min() == pytest.approx(COMPENSATION_KEEP, rel=1e-6)
+    assert compensation_scale(G, 0.5 * G) == 1.0   # a credible estimate is used in full
+    n, q, N_lines = 2, 2, 400
+    A = np.array([[0.9, 0.2], [-0.2, 0.9]])
+    C = np.eye(2)
+    z = np.exp(1j * np.linspace(0.05, 3.0, N_lines))
+    E = rng.standard_normal((1, N_lines, q)) + 1j * rng.standard_normal((1, N_lines, q))
+    Y = rng.standard_normal((1, N_lines, n)) + 0j
+    cov = np.zeros((N_lines, q, q + n), dtype=complex)
+    cov[:, 1, 1] = 5.0                            # the column's power is 2
+    B, D = input_matrices(A, C, E, Y, z, noise_covariance=cov)
+    assert np.all(np.isfinite(B)) and np.all(np.isfinite(D))
