@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -18,11 +17,10 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     from service.settings import get_settings
+    from worker.job_process import share_cpus
 
-    # Embedded job processes inherit this: one BLAS pool per job process, sized so
-    # concurrent jobs share the cores instead of oversubscribing them.
-    workers = get_settings().embedded_workers
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // workers)))
+    # embedded job processes inherit it: concurrent jobs share the cores
+    share_cpus(get_settings().embedded_workers)
 
     import uvicorn
 

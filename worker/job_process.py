@@ -60,6 +60,36 @@ def become_job_process(parent: int, nice: int, die_with_parent: bool) -> None:
         os.nice(nice)
 
 
+JOB_CPUS = "FNSI_JOB_CPUS"
+"""Environment variable through which a launcher tells its job processes how many CPUs
+each may keep busy (:func:`share_cpus`)."""
+
+
+def share_cpus(concurrent_jobs: int) -> int:
+    """Divide this machine's CPUs among ``concurrent_jobs`` job processes (at least one
+    each) and export the share to the processes started from here: as
+    ``OPENBLAS_NUM_THREADS`` (threaded BLAS under contention was seen 100x slower) and
+    as :data:`JOB_CPUS`, the threads a diagnosis validates its candidates with
+    (:func:`job_cpus`). Values already in the environment are kept.
+
+    Returns
+    -------
+    int
+        The share.
+    """
+    share = max(1, (os.cpu_count() or 1) // max(1, concurrent_jobs))
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", str(share))
+    os.environ.setdefault(JOB_CPUS, str(share))
+    return share
+
+
+def job_cpus() -> int | None:
+    """CPUs this job process may keep busy (:func:`share_cpus`); None where no launcher
+    said (the library's defaults then apply)."""
+    value = os.environ.get(JOB_CPUS, "")
+    return max(1, int(value)) if value.isdigit() else None
+
+
 def orphaned() -> bool:
     """Whether this is a job process whose parent died (it was re-parented)."""
     return _parent is not None and os.getppid() != _parent

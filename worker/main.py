@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from worker.job_process import share_cpus
+
 
 def main(argv: list[str] | None = None) -> None:
     """Start a Celery worker with the settings of the FNSI_* environment."""
@@ -19,10 +21,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--hostname", default=None, help="worker node name (Celery -n)")
     args = parser.parse_args(argv)
 
-    # One BLAS pool per job process, sized so concurrent jobs share the cores instead of
-    # oversubscribing them (threaded BLAS under contention was seen 100x slower).
-    os.environ.setdefault("OPENBLAS_NUM_THREADS",
-                          str(max(1, (os.cpu_count() or 1) // max(1, args.concurrency))))
+    # before numpy loads: concurrent jobs share the cores instead of oversubscribing them
+    share_cpus(args.concurrency)
     from service.settings import get_settings
 
     settings = get_settings()

@@ -16,6 +16,7 @@ diagnosis job: ``stiffness.png`` (curves at the top locations), ``candidates.png
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from typing import Any
 
 from fnsi.diagnosis import DiagnosisSettings
@@ -24,6 +25,7 @@ from fnsi.study import Study
 from fnsi.study_plots import diagnosis_figures, plot_history, study_figures
 from service.study_store import StudyStore
 from worker.identifications import settings_of
+from worker.job_process import job_cpus
 from worker.runner import JobContext
 
 
@@ -112,6 +114,8 @@ def diagnose_study_job(context: JobContext) -> dict[str, Any]:
                          f"0..{len(study.revisions) - 1}")
     effort = DiagnosisSettings(**{k: v for k, v in request.items()
                                   if k not in ("study_id", "revision")})
+    if (cpus := job_cpus()) is not None:   # the launcher's share, not the whole machine
+        effort = replace(effort, workers=min(effort.workers, cpus))
     diagnosis = study.diagnose(number, effort, lambda f, m: context.progress(0.95 * f, m))
     context.progress(0.95, "drawing figures")
     figures = {"history.png": plot_history(study), **diagnosis_figures(diagnosis)}
