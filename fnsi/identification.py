@@ -69,6 +69,7 @@ from fnsi.spectra import (
     noise_factor,
     period_mean,
     transform,
+    without_quiet_low_lines,
 )
 from fnsi.stabilisation import (
     StabilisationDiagram,
@@ -601,7 +602,9 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     needs_velocity = any(e.needs_velocity for e in settings.elements)
     # a measured displacement keeps its mean (which clearances see) unless the settings
     # remove it as a sensor offset (fnsi.offsets); integrated ones have zero mean
-    x, v = displacement_velocity(y, data.fs, data.quantity, needs_velocity)
+    x, v = displacement_velocity(
+        without_quiet_low_lines(y, periods, data.fs, data.quantity, settings.band[0]),
+        data.fs, data.quantity, needs_velocity)
     if settings.average_bases:
         xb, vb = period_mean(x, periods), None if v is None else period_mean(v, periods)
     else:

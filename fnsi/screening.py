@@ -36,7 +36,7 @@ import scipy.linalg
 
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
-from fnsi.spectra import displacement_velocity, kept_record
+from fnsi.spectra import displacement_velocity, kept_record, without_quiet_low_lines
 from fnsi.statespace import StateSpaceModel
 
 
@@ -115,7 +115,8 @@ class ScreeningProblem:
                  band: tuple[float, float], discard_periods: int) -> None:
         data = measurement.select(inputs=model.input_names, outputs=model.output_names)
         kept = data.periods - discard_periods
-        periods = kept_record(data.y, data.periods, discard_periods)
+        periods = without_quiet_low_lines(kept_record(data.y, data.periods, discard_periods),
+                                          kept, data.fs, data.quantity, band[0])
         # Regressors built from measured outputs carry their noise; fitted to the same
         # periods they would "explain" that noise (errors in variables). The bases are
         # therefore evaluated on the first half of the kept periods and fitted to the
@@ -137,16 +138,9 @@ class ScreeningProblem:
                              f"{data.fs / self.period_length:.4g} Hz; widen the band")
         self.frequencies = frequencies[self.lines]
         # Bases are evaluated on the averaged period's displacement and velocity (exact
-        # periodic integration), every line kept as the identification keeps it: the
-        # candidates' parameters found here are identified and simulated on that motion
-        # (without the lines below half the band, the gaps of 5-DOF chains' one-sided
-        # stops measured in velocity came out 11 % short and their revisions validated at
-        # 2.3-2.5 % instead of 0.5-1.0 %, floor 0.3 %). Doubly integrated accelerations
-        # are the exception: there the noise of those lines, amplified by 1 / omega^2,
-        # swamps the motion, and the screening drops them (kept, a cubic spring measured
-        # in acceleration ranked below quadratic damping at its DOF).
-        if data.quantity == "acceleration":
-            x_mean = np.where((frequencies >= 0.5 * band[0])[None, :, None], x_mean, 0.0)
+        # periodic integration), every line kept as the identification keeps it
+        # (fnsi.spectra.without_quiet_low_lines): the candidates' parameters found here
+        # are identified and simulated on that motion.
         mean_period = np.fft.irfft(x_mean, n=self.period_length, axis=1)
         x, v = displacement_velocity(mean_period, data.fs, data.quantity, True)
         self.motion = MotionRecord(x, v, data.output_names)

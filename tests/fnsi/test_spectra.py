@@ -14,6 +14,7 @@ from fnsi.spectra import (
     output_spectra,
     period_mean,
     transform,
+    without_quiet_low_lines,
 )
 
 
@@ -146,3 +147,31 @@ def test_measured_excitation_keeps_the_excited_lines_and_drops_the_sensor_noise(
     np.testing.assert_allclose(measured_excitation(np.tile(clean, 2)[None, :, None], 2)[0, :, 0],
                                clean, atol=1e-12)
     np.testing.assert_array_equal(measured_excitation(u[None, :n, None], 1)[0, :, 0], u[:n])
+
+
+def test_noise_under_the_band_is_dropped_before_integration_and_distortion_kept():
+    """Below the band an acceleration record holds distortion and noise; integrated
+    twice, the noise of the lowest lines would swamp the motion. A periodic line that
+    stands out stays, noise-only lines go, the band is untouched."""
+    rng = np.random.default_rng(4)
+    fs, n, periods, low = 64.0, 256, 4, 4.0            # lines every 0.25 Hz
+    t = np.arange(n * periods) / fs
+    distortion = 0.2 * np.cos(2 * np.pi * 1.0 * t)     # a line under the band
+    signal = np.cos(2 * np.pi * 10.0 * t)               # an excited line
+    noise = 0.05 * rng.standard_normal(t.size)
+    y = (distortion + signal + noise)[None, :, None]
+    cleaned = without_quiet_low_lines(y, periods, fs, "acceleration", low)
+    spectrum = lambda x: np.fft.rfft(x[0, :, 0].reshape(periods, n), axis=1)  # noqa: E731
+    before, after = spectrum(y), spectrum(cleaned)
+    f = np.fft.rfftfreq(n, 1 / fs)
+    under = (f > 0) & (f < low)
+    kept = np.flatnonzero(np.any(np.abs(after[:, under]) > 1e-9, axis=0))
+    # the 1 Hz line (power 0.2^2 against a noise variance of 0.05^2 / 4 of the average)
+    # stays whole in every period; a noise line exceeds twice its variance with
+    # probability exp(-2), so about 2 of the 15 others stay
+    assert f[under][kept].tolist().count(1.0) == 1
+    np.testing.assert_allclose(after[:, f == 1.0], before[:, f == 1.0])
+    assert len(kept) <= 5
+    np.testing.assert_allclose(after[:, f >= low], before[:, f >= low], atol=1e-9)
+    for quantity, p in (("displacement", periods), ("acceleration", 1)):
+        assert without_quiet_low_lines(y, p, fs, quantity, low) is y
