@@ -175,27 +175,54 @@ NEAR_SPAN = 8
 """Half-width of the first window of a search near an expected order (four modes)."""
 
 
+LOCAL_FACTOR = 2.0
+"""A local minimum of the orders simulated, below the best order, whose error is within
+this factor of the best's is searched around too (:func:`_search_near`): between two
+orders every fourth apart, the error of a model with noisy bases can fall by that much."""
+
+
 def _search_near(orders: list[int], near: int, errors: dict[int, float],
                  evaluate: Callable[[int], None]) -> None:
     """Every other order within :data:`NEAR_SPAN` of ``near``, every fourth elsewhere (a
     better region far from the expected order is still found: a strongly nonlinear
     chain's linear revision held 4 states, the revision with its cubic spring 30), then
-    further on the side where the best lies at the edge of what was simulated."""
+    every other order around the best, and around the lower local minima within
+    :data:`LOCAL_FACTOR` of it, until none is left (the error curve of noisy bases is not
+    smooth: on a 5-DOF chain's cubic spring measured in velocity, the sparse search had
+    order 10 at 1.97 % and its best, 28, at 1.47 %; order 12, never simulated, gave
+    1.19 %)."""
     centre = min(range(len(orders)), key=lambda k: abs(orders[k] - near))
     window = [o for o in orders[centre % 2::2] if abs(o - orders[centre]) <= NEAR_SPAN]
     for order in dict.fromkeys([*window, *orders[centre % 4::4], orders[-1]]):
         evaluate(order)
     while True:
-        finite = {k: v for k, v in errors.items() if math.isfinite(v)}
-        best = min(finite, key=finite.get) if finite else None
+        best, *minima = _promising(errors) or [None]
         if best is None:
             return
-        k = orders.index(best)
-        around = [o for o in orders[max(k - 2, 0): k + 3: 2] if o not in errors]
+        # every other order around the best; the next ones of a lower minimum, which is
+        # kept only when it or a neighbour comes within TOLERANCE of the best
+        around = [o for k in [orders.index(best)] for o in orders[max(k - 2, 0): k + 3: 2]]
+        around += [o for k in map(orders.index, minima) for o in orders[max(k - 1, 0): k + 2]]
+        around = [o for o in around if o not in errors]
         if not around:
             return
-        for order in around:
+        for order in dict.fromkeys(around):
             evaluate(order)
+
+
+def _promising(errors: dict[int, float]) -> list[int]:
+    """The best order simulated and the local minima below it within
+    :data:`LOCAL_FACTOR` of its error (none when no order could be simulated)."""
+    finite = {k: v for k, v in errors.items() if math.isfinite(v)}
+    if not finite:
+        return []
+    best = min(finite, key=finite.get)
+    tried = sorted(errors)
+    minima = [o for i, o in enumerate(tried) if o < best and o in finite
+              and errors[o] <= LOCAL_FACTOR * finite[best]
+              and all(errors[o] < errors[tried[j]] for j in (i - 1, i + 1)
+                      if 0 <= j < len(tried))]
+    return [best, *minima]
 
 
 def _lowest_within(errors: dict[int, float], floor: float) -> int | None:
