@@ -19,7 +19,8 @@ test: $(VENV)/.installed-dev
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 ## test-numerics: the numerical tests alone, to run under another BLAS kernel, e.g.
-## OPENBLAS_CORETYPE=SkylakeX OPENBLAS_NUM_THREADS=2 make test-numerics (CI does)
+## OPENBLAS_CORETYPE=SkylakeX OPENBLAS_NUM_THREADS=2 make test-numerics on an AVX-512 CPU,
+## Sandybridge on others (CI does, see .ci/run)
 test-numerics: $(VENV)/.installed-dev
 	$(BIN)/python -m pytest tests/fnsi tests/benchmarks $(PYTEST_ARGS)
 
