@@ -602,13 +602,17 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     needs_velocity = any(e.needs_velocity for e in settings.elements)
     # a measured displacement keeps its mean (which clearances see) unless the settings
     # remove it as a sensor offset (fnsi.offsets); integrated ones have zero mean
-    x, v = displacement_velocity(
-        without_quiet_low_lines(y, periods, data.fs, data.quantity, settings.band[0]),
-        data.fs, data.quantity, needs_velocity)
+    x, v = displacement_velocity(y, data.fs, data.quantity, needs_velocity)
+    # the motion the bases see, without the noise integration brings up under the band
+    # (the outputs keep every line: a line's removal, period by period, leaks into the
+    # lines between the harmonics of the whole record)
+    motion = without_quiet_low_lines(y, periods, data.fs, data.quantity, settings.band[0])
+    xm, vm = (x, v) if motion is y else displacement_velocity(motion, data.fs, data.quantity,
+                                                               needs_velocity)
     if settings.average_bases:
-        xb, vb = period_mean(x, periods), None if v is None else period_mean(v, periods)
+        xb, vb = period_mean(xm, periods), None if vm is None else period_mean(vm, periods)
     else:
-        xb, vb = x, v
+        xb, vb = xm, vm
     # a model to be refined is identified as refinement simulates it, one basis value per
     # sample (the oversampled one may not simulate at fs: fnsi.oversampling)
     oversampling = 1 if settings.refine else oversampling_factor(settings.elements, data.fs,
@@ -623,7 +627,7 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
     if periods >= 2 and (compensate or settings.uncertainty):
         # the bases of each period, whose spread is the noise the average carries
         raw = E if not settings.average_bases else np.concatenate(
-            [u, _basis_series(elements, data, x, v, oversampling)[1]], axis=2)
+            [u, _basis_series(elements, data, xm, vm, oversampling)[1]], axis=2)
         averaged = np.repeat([False, settings.average_bases, False],
                              [u.shape[2], g.shape[2], x.shape[2]])
         factor = noise_factor(np.concatenate([raw, x], axis=2), periods, data.fs,
