@@ -199,9 +199,10 @@ def _search_near(orders: list[int], near: int, errors: dict[int, float],
         best, *minima = _promising(errors) or [None]
         if best is None:
             return
-        # every other order around the best; the next ones of a lower minimum, which is
-        # kept only when it or a neighbour comes within TOLERANCE of the best
-        around = [o for k in [orders.index(best)] for o in orders[max(k - 2, 0): k + 3: 2]]
+        # every other order around the best; the next ones of a lower minimum (chosen
+        # only if it or a neighbour comes within TOLERANCE of the best, _lowest_within)
+        k = orders.index(best)
+        around = orders[max(k - 2, 0): k + 3: 2]
         around += [o for k in map(orders.index, minima) for o in orders[max(k - 1, 0): k + 2]]
         around = [o for o in around if o not in errors]
         if not around:
