@@ -379,7 +379,9 @@ class _Simulator:
                 f"the nonlinear step has no solution at t = {t:.6g} s (Newton failed in "
                 f"{self.max_iterations} iterations): the identified feed-through D^e_nl (or "
                 f"C B^e_nl for velocity bases) folds the output equation, which happens when "
-                f"it has the sign of a softening; try feedthrough='explicit' or another order"
+                f"it has the sign of a softening; identify at another order (studies then "
+                f"evaluate the feed-through explicitly; in Python: simulate_periodic(..., "
+                f"feedthrough='explicit'))"
             )
         return y
 
@@ -666,5 +668,7 @@ def simulate_periodic(
     raise NoSteadyStateError(
         f"no periodic steady state after {max_periods} periods (last period-to-period "
         f"change {change:.3g} > tolerance {tolerance:g}): the response may be "
-        f"quasi-periodic or chaotic, or the damping very light; raise max_periods"
+        f"quasi-periodic or chaotic, or the damping very light; identify at another "
+        f"order, or lower the input level (in Python: simulate_periodic(..., "
+        f"max_periods=...) allows more periods)"
     )
