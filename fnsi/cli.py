@@ -318,8 +318,10 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
                         "(default all)")
     parser.add_argument("--discard-periods", type=int, default=1,
                         help="leading transient periods left out (default 1)")
-    parser.add_argument("--weighting", action="store_true",
-                        help="weight by the noise covariance estimated between periods")
+    parser.add_argument("--weighting", action=argparse.BooleanOptionalAction, default="auto",
+                        help="weight by the noise covariance estimated between periods "
+                        "(default: on for velocity and acceleration records, off for "
+                        "displacement)")
     parser.add_argument("--frequency-warping", action="store_true",
                         help="build the data matrices in a warped frequency variable "
                         "(changes the model class; off by default)")

@@ -140,8 +140,16 @@ class IdentificationSettings:
     elements : tuple of NonlinearElement
         Nonlinear elements whose coefficients are identified; their dof / ref name
         output channels.
-    weighting : bool
+    weighting : bool or "auto"
         Weight the SVD by the output noise covariance (two kept periods needed).
+        ``"auto"`` (default) weights velocity and acceleration records, whose noise,
+        white in the measured quantity, is coloured as 1 / f^p once integrated into
+        the displacements FNSI fits, and leaves displacement records unweighted, whose
+        white noise the orthonormal row basis already whitens (:mod:`fnsi.subspace`).
+        A 5-DOF chain's cubic spring measured in acceleration with 0.5 % noise: at the
+        true order the unweighted fit took a pole at the band's noisy lower edge for
+        the top mode and its refinement stopped at 18 times the floor; weighted, every
+        mode was found and the refinement reached 1.07 times it.
     driving_points : tuple of (str, str)
         (input, output) pairs: the output measured at the point and direction of a force.
         Default: found by name, input ``"<dof>"`` or ``"F_<dof>"`` -> output ``"<dof>"``
@@ -229,7 +237,7 @@ class IdentificationSettings:
     line_set: str = "all"
     discard_periods: int = 1
     elements: tuple[NonlinearElement, ...] = ()
-    weighting: bool = False
+    weighting: bool | Literal["auto"] = "auto"
     driving_points: tuple[tuple[str, str], ...] = ()
     average_bases: bool = True
     compensate_basis_noise: bool = False
@@ -264,6 +272,8 @@ class IdentificationSettings:
             set_(self, "max_order", int(self.order))
         if self.discard_periods < 0:
             raise ValueError(f"discard_periods must be >= 0; got {self.discard_periods}")
+        if self.weighting != "auto" and not isinstance(self.weighting, bool):
+            raise ValueError(f"weighting must be true, false or 'auto'; got {self.weighting!r}")
 
     def line_counts(self, data: Measurement | Layout) -> tuple[int, int]:
         """Analysis lines N of ``line_set`` and harmonic lines N_s of the period in the band.
@@ -309,6 +319,15 @@ class IdentificationSettings:
                             data.n_outputs, max_order=max(self.max_order, order or 0),
                             order=order)
         return dataclasses.replace(self, block_rows=i)
+
+    def weighted(self, measurement: Measurement) -> IdentificationSettings:
+        """These settings with ``weighting="auto"`` decided for a measurement: on for
+        velocity and acceleration records with two kept periods, off otherwise."""
+        if self.weighting != "auto":
+            return self
+        kept = measurement.periods - self.discard_periods
+        return dataclasses.replace(self, weighting=kept >= 2
+                                   and measurement.quantity != "displacement")
 
     def to_json(self) -> dict:
         """JSON-ready settings."""
@@ -519,7 +538,7 @@ def check_settings(record: Measurement | Layout, settings: IdentificationSetting
     if kept < 1:
         raise ValueError(f"discard_periods={settings.discard_periods} leaves no period of the "
                          f"{data.periods} measured; discard fewer")
-    if settings.weighting and kept < 2:
+    if settings.weighting is True and kept < 2:
         raise ValueError(f"weighting needs the noise covariance from at least two kept periods; "
                          f"{kept} kept ({data.periods} measured, {settings.discard_periods} "
                          "discarded)")
@@ -826,7 +845,7 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         Inconsistent settings or data, with what to change (checked before heavy work).
     """
     clock = _Clock(progress)
-    settings = check_settings(measurement.layout, settings)
+    settings = check_settings(measurement.layout, settings).weighted(measurement)
     data = measurement.select(settings.inputs, settings.outputs)
     offsets = measured_offsets(data, settings.discard_periods)
     if settings.remove_offsets:

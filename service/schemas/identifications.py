@@ -185,8 +185,10 @@ class IdentificationRequest(RequestModel):
         "input excites.")
     discard_periods: StrictInt = Field(1, ge=0, description="Leading periods dropped as "
                                  "transient.", examples=[1])
-    weighting: StrictBool = Field(False, description="Weight the data by the noise covariance "
-                            "estimated from the periods.")
+    weighting: StrictBool | Literal["auto"] = Field(
+        "auto", description="Weight the data by the noise covariance estimated from the "
+        "periods. auto: on for velocity and acceleration records (their noise grows as "
+        "1/f^p once integrated into displacement), off for displacement records.")
     frequency_warping: StrictBool = Field(
         False, description="Build the FNSI data matrices in a warped frequency variable that "
         "spreads the band over the unit circle (the model is mapped back exactly). Use it "

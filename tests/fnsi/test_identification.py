@@ -249,6 +249,24 @@ def test_weighting_needs_two_kept_periods(cubic):
                                                   weighting=True, discard_periods=5))
 
 
+def test_automatic_weighting_follows_the_measured_quantity(cubic):
+    """Integrated velocity or acceleration noise is coloured as 1 / f^p: weighted; white
+    displacement noise, or one kept period (no noise estimate): unweighted."""
+    record = cubic[2]
+    settings = IdentificationSettings(band=BAND)
+    assert settings.weighting == "auto"
+    assert settings.weighted(record).weighting is False
+    for quantity in ("velocity", "acceleration"):
+        velocity = dataclasses.replace(record, quantity=quantity)
+        assert settings.weighted(velocity).weighting is True
+        one_period = dataclasses.replace(settings, discard_periods=record.periods - 1)
+        assert one_period.weighted(velocity).weighting is False
+    result = identify(record, dataclasses.replace(settings, block_rows=BLOCK_ROWS, order=6))
+    assert result.settings.weighting is False     # what was used, not "auto"
+    with pytest.raises(ValueError, match="'auto'"):
+        IdentificationSettings(band=BAND, weighting="yes")
+
+
 def test_non_increasing_knots_are_refused():
     with pytest.raises(ValueError, match="increasing"):
         NonlinearElement("spline", "a", knots=(-1.0, 1.0, 0.5))
