@@ -67,9 +67,13 @@ if TYPE_CHECKING:
 
 Progress = Callable[[float, str], None]
 FORMAT = "fnsi-study/1"
-AUTO_REFINE_FACTOR = 3.0
+AUTO_REFINE_FACTOR = 2.0
 """A revision whose FNSI model misses the validation data by more than this multiple of
-the noise floor is refined by its simulation error (:meth:`Study._refined_if_needed`)."""
+the noise floor is refined by its simulation error (:meth:`Study._refined_if_needed`):
+twice the floor is where the remaining model error equals the noise (errors add in
+squares, sqrt(1 + 1) ~ 1.4, and twice allows for the floor's own scatter), so a model
+above it has more to gain than the noise. At three times, a 5-DOF chain's cubic spring
+measured in velocity stayed at 2.2 times the floor (1.53 %), refined 1.06 times."""
 REPAIRS = (("implicit", ""),
            ("explicit", "its nonlinear feed-through evaluated explicitly (the implicit "
                         "output equation has no solution on the validation input)"))
