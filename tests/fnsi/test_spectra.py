@@ -151,26 +151,33 @@ def test_measured_excitation_keeps_the_excited_lines_and_drops_the_sensor_noise(
 
 def test_noise_under_the_band_is_dropped_before_integration_and_distortion_kept():
     """Below the band an acceleration record holds distortion and noise; integrated
-    twice, the noise of the lowest lines would swamp the motion. A periodic line that
-    stands out stays, noise-only lines go, the band is untouched."""
+    twice, the noise of the lowest lines would swamp the motion. In a channel whose
+    lines there carry distortion, a periodic line that stands out stays and noise-only
+    lines go; in a channel with noise alone there, every line goes; the band is
+    untouched."""
     rng = np.random.default_rng(4)
     fs, n, periods, low = 64.0, 256, 4, 4.0            # lines every 0.25 Hz
     t = np.arange(n * periods) / fs
     distortion = 0.2 * np.cos(2 * np.pi * 1.0 * t)     # a line under the band
     signal = np.cos(2 * np.pi * 10.0 * t)               # an excited line
-    noise = 0.05 * rng.standard_normal(t.size)
-    y = (distortion + signal + noise)[None, :, None]
+    noise = 0.05 * rng.standard_normal((2, t.size))
+    y = np.stack([distortion + signal + noise[0], signal + noise[1]], axis=1)[None]
     cleaned = without_quiet_low_lines(y, periods, fs, "acceleration", low)
-    spectrum = lambda x: np.fft.rfft(x[0, :, 0].reshape(periods, n), axis=1)  # noqa: E731
-    before, after = spectrum(y), spectrum(cleaned)
+    spectrum = lambda x, c: np.fft.rfft(x[0, :, c].reshape(periods, n), axis=1)  # noqa: E731
     f = np.fft.rfftfreq(n, 1 / fs)
     under = (f > 0) & (f < low)
+    before, after = spectrum(y, 0), spectrum(cleaned, 0)
     kept = np.flatnonzero(np.any(np.abs(after[:, under]) > 1e-9, axis=0))
     # the 1 Hz line (power 0.2^2 against a noise variance of 0.05^2 / 4 of the average)
-    # stays whole in every period; a noise line passes the detection level with
-    # probability 1e-4, so none of the 15 others stays (at twice the variance, 2 did)
+    # stays whole in every period; a noise line passes ln(15 / 0.1) with probability
+    # 1/150, so none of the 15 others stays (at twice its variance, 2 did)
     assert f[under][kept].tolist() == [1.0]
     np.testing.assert_allclose(after[:, f == 1.0], before[:, f == 1.0])
     np.testing.assert_allclose(after[:, f >= low], before[:, f >= low], atol=1e-9)
+    # the second channel has noise alone under the band (a sum of 15 line powers over
+    # their variance passes the group test with probability 1e-3): nothing is kept
+    quiet = spectrum(cleaned, 1)
+    assert np.abs(quiet[:, under]).max() < 1e-9
+    np.testing.assert_allclose(quiet[:, f >= low], spectrum(y, 1)[:, f >= low], atol=1e-9)
     for quantity, p in (("displacement", periods), ("acceleration", 1)):
         assert without_quiet_low_lines(y, p, fs, quantity, low) is y
