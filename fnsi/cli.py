@@ -320,8 +320,8 @@ def _add_identification_options(parser: argparse.ArgumentParser) -> None:
                         help="leading transient periods left out (default 1)")
     parser.add_argument("--weighting", action=argparse.BooleanOptionalAction, default="auto",
                         help="weight by the noise covariance estimated between periods "
-                        "(default: on for velocity and acceleration records, off for "
-                        "displacement)")
+                        "(default: on for velocity and acceleration records whose order "
+                        "is chosen by simulation, as in studies; off otherwise)")
     parser.add_argument("--frequency-warping", action="store_true",
                         help="build the data matrices in a warped frequency variable "
                         "(changes the model class; off by default)")

@@ -188,7 +188,8 @@ class IdentificationRequest(RequestModel):
     weighting: StrictBool | Literal["auto"] = Field(
         "auto", description="Weight the data by the noise covariance estimated from the "
         "periods. auto: on for velocity and acceleration records (their noise grows as "
-        "1/f^p once integrated into displacement), off for displacement records.")
+        "1/f^p once integrated into displacement) when the order is chosen by simulation, "
+        "as in studies; off for displacement records and for the modal order rule.")
     frequency_warping: StrictBool = Field(
         False, description="Build the FNSI data matrices in a warped frequency variable that "
         "spreads the band over the unit circle (the model is mapped back exactly). Use it "

@@ -250,10 +250,11 @@ def test_weighting_needs_two_kept_periods(cubic):
 
 
 def test_automatic_weighting_follows_the_measured_quantity(cubic):
-    """Integrated velocity or acceleration noise is coloured as 1 / f^p: weighted; white
-    displacement noise, or one kept period (no noise estimate): unweighted."""
+    """Integrated velocity or acceleration noise is coloured as 1 / f^p: weighted when
+    the order is chosen by simulation; white displacement noise, one kept period (no
+    noise estimate) or the modal order rule: unweighted."""
     record = cubic[2]
-    settings = IdentificationSettings(band=BAND)
+    settings = IdentificationSettings(band=BAND, order_rule="simulation")
     assert settings.weighting == "auto"
     assert settings.weighted(record).weighting is False
     for quantity in ("velocity", "acceleration"):
@@ -261,6 +262,8 @@ def test_automatic_weighting_follows_the_measured_quantity(cubic):
         assert settings.weighted(velocity).weighting is True
         one_period = dataclasses.replace(settings, discard_periods=record.periods - 1)
         assert one_period.weighted(velocity).weighting is False
+        modal = dataclasses.replace(settings, order_rule="modes")
+        assert modal.weighted(velocity).weighting is False
     result = identify(record, dataclasses.replace(settings, block_rows=BLOCK_ROWS, order=6))
     assert result.settings.weighting is False     # what was used, not "auto"
     with pytest.raises(ValueError, match="'auto'"):
