@@ -30,9 +30,7 @@ on. It is *claimed* only when three things hold:
    explain (on linear structures an element at another order validated at 0.14 %
    against the linear model's 0.16 %, floor 0.13 %: 66 % of an excess that is itself
    half the noise).
-3. **Physically plausible**: contact and dissipation of the right sign
-   (:func:`fnsi.diagnosis.implausibility`), and, where a driving point gives the
-   coefficient, nearly real (:func:`fnsi.diagnosis.complex_coefficient`).
+3. **Physically plausible** (:func:`fnsi.diagnosis.implausibility`).
 
 Without a noise floor (one kept period) the test cannot be made; the NRMSE must then
 fall by 20 % on top of the penalty. When the revision itself cannot be simulated there is

@@ -33,8 +33,7 @@ equation). A candidate is *claimed* by the rule of :mod:`fnsi.claim`: its improv
 significant against the period-to-period noise (one-sided z test), each parameter it adds
 lowers the RMS error above the noise floor by 10 %, and its coefficient is
 physically plausible (a stop with negative contact stiffness, or friction or damping that
-feeds energy in, lowers the error for another reason: :func:`implausibility`) and, where
-a driving point gives it, nearly real (Section II.E, :func:`complex_coefficient`). Claimed
+feeds energy in, lowers the error for another reason: :func:`implausibility`). Claimed
 candidates come first, the simpler winning unless the richer explains clearly more. When
 none is claimed alone, two that each help significantly are validated together, the
 second chosen with the poles held (:func:`claim_pair`: of two missing effects, each of
@@ -801,46 +800,6 @@ def added_parameters(effect: Effect, element: NonlinearElement | None) -> int:
     return 1
 
 
-MIN_LOG10_REAL_IMAG = 1.0
-"""Smallest log10(|Re| / |Im|) of a claimed element's band coefficient (paper Section
-II.E: the right functional form makes the imaginary part much smaller than the real
-one; the paper's stop reached more than 2)."""
-
-
-def complex_coefficient(log_ratio: float | None) -> str | None:
-    """Why an identified coefficient is not that of a physical law, or None.
-
-    A law of the right form acting where it is placed has a real coefficient
-    (Eq. 17 holds on every line with a real mu); a basis that lowers the error for
-    another reason (a linear misfit of the revision it corrects, an effect of another
-    form) needs an imaginary part too. On the generalisation benchmark's development
-    cases every true element identified with a driving point had log10(Re/Im) of 1.2 to
-    2.4, and the elements claimed on linear structures or after the true one 0.76 and
-    below.
-
-    Parameters
-    ----------
-    log_ratio : float or None
-        log10(|Re| / |Im|) of the band coefficient (:attr:`fnsi.modal.Coefficient.
-        log10_real_imag`; None: no coefficient, nothing to judge).
-
-    Returns
-    -------
-    str or None
-
-    Examples
-    --------
-    >>> complex_coefficient(0.69)
-    'its identified coefficient is far from real (log10(Re/Im) = 0.69, below 1)'
-    >>> complex_coefficient(2.1) is None and complex_coefficient(None) is None
-    True
-    """
-    if log_ratio is None or not log_ratio < MIN_LOG10_REAL_IMAG:
-        return None
-    return (f"its identified coefficient is far from real (log10(Re/Im) = {log_ratio:.2g}, "
-            f"below {MIN_LOG10_REAL_IMAG:g})")
-
-
 def implausibility(effect: Effect, element: NonlinearElement | None) -> str | None:
     """Why an identified coefficient contradicts the physics of its effect, or None.
 
@@ -1092,9 +1051,7 @@ def claim_rule(candidates: int) -> str:
             f"{critical_z(candidates):.2g}), when each parameter it adds lowers the RMS "
             f"error above the noise floor by at least {100 * FALL_PER_PARAMETER:.0f} % and "
             f"it removes more squared error than the squared noise floor, and when its "
-            f"coefficient is physically plausible (signs of contact and dissipation) and, "
-            f"where a driving point gives it, nearly real (log10(Re/Im) >= "
-            f"{MIN_LOG10_REAL_IMAG:g})")
+            f"coefficient is physically plausible")
 
 
 def _summary(candidates: Sequence[Candidate], before: float, floor: float,
@@ -1308,7 +1265,7 @@ def _validate(study: Study, revision: int, proposal: Proposal, judge: _Judge,
     element, log_ratio, flatness = _coefficient_quality(evaluation, proposal.element)
     judge = judge.at_order(study, revision, evaluation.order)
     test = judge.test(evaluation, added_parameters(proposal.effect, element))
-    concern = implausibility(proposal.effect, element) or complex_coefficient(log_ratio)
+    concern = implausibility(proposal.effect, element)
     return Candidate(
         effect=proposal.effect, location=proposal.location, element=element,
         order=evaluation.order, validation_nrmse_percent=after,
@@ -1417,11 +1374,9 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
             continue
         pair = tests.at_order(study, revision, evaluation.order).test(
             evaluation, first.parameters + added_parameters(other.effect, other.element))
-        identified = [_coefficient_quality(evaluation, e) for e in (alone, other.element)]
-        if pair.passed and not any(
-                implausibility(effect, e) or complex_coefficient(log_ratio)
-                for effect, (e, log_ratio, _) in zip((first.effect, other.effect), identified,
-                                                     strict=True)):
+        identified = [_coefficient_quality(evaluation, e)[0] for e in (alone, other.element)]
+        if pair.passed and not any(implausibility(effect, e) for effect, e in
+                                   zip((first.effect, other.effect), identified, strict=True)):
             passed.append((pair, first, other))
     if not passed:
         return list(candidates)

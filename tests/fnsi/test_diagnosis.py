@@ -31,7 +31,6 @@ from fnsi.claim import claim_test
 from fnsi.diagnosis import (
     MAX_FRICTION_WIDTH,
     MAX_KIND_LOCATIONS,
-    MIN_LOG10_REAL_IMAG,
     TRIAL_STEPS,
     Candidate,
     Diagnosis,
@@ -46,8 +45,6 @@ from fnsi.diagnosis import (
     _summary,
     added_parameters,
     candidate_locations,
-    claim_rule,
-    complex_coefficient,
     distinct_locations,
     implausibility,
     kind_locations,
@@ -514,20 +511,6 @@ def test_softening_and_asymmetry_are_plausible_either_sign():
     assert implausibility(Effect.MISSING_MODE, None) is None
     unidentified = NonlinearElement("clearance", "x3", gap=1e-3)
     assert implausibility(Effect.CLEARANCE, unidentified) is None
-
-
-def test_a_coefficient_far_from_real_is_not_a_physical_law():
-    """Paper II.E: the right form leaves the imaginary part much smaller than the real
-    one. An element that corrects a linear misfit needs a large imaginary part (on a
-    linear structure's development case, 0.69) and is not claimed."""
-    concern = complex_coefficient(0.69)
-    assert concern is not None and "log10(Re/Im) = 0.69" in concern
-    assert complex_coefficient(-1.3) is not None
-    assert complex_coefficient(MIN_LOG10_REAL_IMAG) is None
-    assert complex_coefficient(2.4) is None
-    # no driving point, no coefficient: nothing to judge
-    assert complex_coefficient(None) is None and complex_coefficient(math.nan) is None
-    assert f"log10(Re/Im) >= {MIN_LOG10_REAL_IMAG:g}" in claim_rule(5)
 
 
 def _candidate(effect: Effect, nrmse: float, concern: str | None = None) -> Candidate:
