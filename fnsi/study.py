@@ -408,7 +408,11 @@ class Study:
                              f"{settings.discard_periods} are discarded; record more periods")
         self.estimation = estimation
         self.validation = validation
-        self.settings = replace(settings, elements=())
+        # "auto" weighting decided as for the revisions (order chosen by simulation), and
+        # kept for every identification of the loop, the diagnosis' modal screening model
+        # included: its candidates then come from the same fit as the revisions
+        loop = replace(settings, elements=(), order_rule="simulation").weighted(estimation)
+        self.settings = replace(settings, elements=(), weighting=loop.weighting)
         self.connections = tuple((str(a), str(b)) for a, b in connections)
         outputs = self.output_names
         for pair in self.connections:
