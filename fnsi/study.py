@@ -654,10 +654,12 @@ class Study:
                                 trial=trial, refine_iterations=iterations)
         if not refined.nrmse_percent < error:
             return evaluation
+        # noise-free (e.g. simulated) records have a zero floor: no ratio to quote
+        missed = (f"validation data by {error / floor:.3g} times the noise floor"
+                  if floor > 0 else "noise-free validation data")
         return replace(refined, repairs=(*refined.repairs, (
-            f"refined by its simulation error: FNSI's model missed the validation data by "
-            f"{error / floor:.3g} times the noise floor ({error:.3g} % -> "
-            f"{refined.nrmse_percent:.3g} %)")))
+            f"refined by its simulation error: FNSI's model missed the {missed} "
+            f"({error:.3g} % -> {refined.nrmse_percent:.3g} %)")))
 
     def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
                 progress: Progress | None, order_near: int | None = None) -> Revision:

@@ -325,3 +325,28 @@ def test_a_revision_that_refines_badly_at_its_simulated_order_is_refined_at_its_
     assert revision.nrmse_percent < 0.7 * study.revisions[0].nrmse_percent
     assert revision.identified_order == study.revisions[0].identified_order
     assert "refined by its simulation error" in revision.repairs[-1]
+
+
+def test_noise_free_records_are_studied_without_a_noise_floor_to_divide_by():
+    """Exactly periodic records without noise have a zero floor: every model then misses
+    it and is refined, and the repair's words quoted the miss as a multiple of the floor
+    (a ZeroDivisionError failed Study.create on a noise-free case of the generalisation
+    benchmark)."""
+    from fnsi.identification import IdentificationSettings
+
+    def periodic(record):   # its last period repeated: no transient, no noise
+        last = slice(-record.period_length, None)
+        return dataclasses.replace(
+            record, u=np.tile(record.u[:, last], (1, record.periods, 1)),
+            y=np.tile(record.y[:, last], (1, record.periods, 1)))
+
+    study = Study.create(*map(periodic, chain_records("displacement", 0.0)),
+                         IdentificationSettings(band=(3.0, 50.0)))
+    revision = study.add_revision(add=[CUBIC_X4_X3])
+    assert study.noise_floor_percent == 0.0
+    # three modes for five: the refinement improves it, and says so without a ratio
+    refined = study.better_refined(study.evaluate((), 6))
+    assert any("missed the noise-free validation data" in w for w in refined.repairs)
+    # noise free, the true element leaves little (18 % -> 0.03 % measured): a tenth is
+    # far from both
+    assert revision.nrmse_percent < 0.1 * study.revisions[0].nrmse_percent
