@@ -38,7 +38,11 @@ and the estimation response it is identified from, by 3-60 %
 library's study loop with its defaults (create, diagnose, add the top
 candidate, diagnose, add) on each, blind; scored by
 :mod:`benchmarks.generalisation.hidden_scoring` into
-benchmarks/results/generalisation_hidden.md. ``--smoke``: the first 10 cases. ``--jobs``
+benchmarks/results/generalisation_hidden.md. ``--phase oracle``, once answered: the true
+elements added by the library, which tells a diagnosis-limited failure from an
+identification-limited one (:mod:`benchmarks.generalisation.oracle`; last line
+{"cases", "loop_floor_reached", "oracle_floor_reached", "diagnosis_limited",
+"identification_limited"}). ``--smoke``: the first 10 cases. ``--jobs``
 processes generate and run cases in parallel (default 2). Last output line: one JSON
 object {"cases", "top1_kind_location_pct", "floor_reached_pct", "false_alarm_pct",
 "two_effect_found_pct", "nothing_found_above_floor", "median_diagnosis_s"}.
@@ -60,6 +64,7 @@ sys.path.insert(0, str(ROOT))  # this checkout's fnsi and benchmarks, not an ins
 from benchmarks.generalisation import hidden_scoring  # noqa: E402
 from benchmarks.generalisation.cases import generate  # noqa: E402
 from benchmarks.generalisation.hidden import generate_hidden  # noqa: E402
+from benchmarks.generalisation.oracle import oracle_report, run_oracle  # noqa: E402
 from benchmarks.generalisation.runner import run  # noqa: E402
 from benchmarks.generalisation.scoring import report, score_all, summary  # noqa: E402
 
@@ -91,6 +96,15 @@ asymmetric), one-sided stop (side must match), Coulomb friction, quadratic dampi
 location is the pair of DOFs or a DOF and the ground. Timings measured on a shared,
 heavily loaded 2-core machine (two cases at a time)."""
 
+ORACLE_HEADER = """# Generalisation benchmark, hidden-effect part: the loop against the truth
+
+Produced by `benchmarks/generalisation.py --part hidden --phase oracle` after the answers
+(`benchmarks/generalisation/oracle.py`): per case with an effect, the true elements added
+to the library's linear revision in one study revision (a clearance's gaps mapped into the
+measured coordinate by one offset fitted with the poles held). A failure of the loop is
+diagnosis-limited when the true elements reach twice the noise floor, and
+identification-limited when they do not: then no diagnosis could have reached it."""
+
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -108,7 +122,10 @@ def main(argv: list[str] | None = None) -> None:
                              "generator: some order must then be correct on every case)")
     parser.add_argument("--workdir", type=Path, default=None,
                         help="benchmark directory (default: a fresh temporary one)")
-    parser.add_argument("--phase", choices=("all", "generate", "run", "score"), default="all")
+    parser.add_argument("--phase", choices=("all", "generate", "run", "score", "oracle"),
+                        default="all",
+                        help="oracle (hidden part, after the answers): the true elements "
+                             "added to the library's linear revision, against the loop")
     parser.add_argument("--results", type=Path, default=None,
                         help=f"Markdown table (default {RESULTS.relative_to(ROOT)} for a full "
                              "run of all phases, else generalisation.md in the work directory)")
@@ -172,6 +189,18 @@ def hidden(args: argparse.Namespace) -> None:
         target.write_text(hidden_scoring.report(scores, seed, HIDDEN_HEADER))
         print(f"table written to {target}")
         print(json.dumps(hidden_scoring.summary(scores)))
+    if args.phase == "oracle":
+        start = time.perf_counter()
+        run_oracle(root, lambda case, o: print(
+            f"{case}: {o['status']}, linear {o.get('linear_pct')} %, true elements "
+            f"{o.get('oracle_pct')} %, floor {o.get('noise_floor_pct')} %", flush=True),
+                   jobs=args.jobs)
+        table, totals = oracle_report(root)
+        target = args.results or root / "oracle.md"
+        target.write_text(f"{ORACLE_HEADER}\n\nSeed {seed}, {time.perf_counter() - start:.0f} s."
+                          f"\n\n{table}")
+        print(f"table written to {target}")
+        print(json.dumps(totals))
 
 
 if __name__ == "__main__":

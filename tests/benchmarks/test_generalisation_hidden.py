@@ -1,17 +1,19 @@
 """The hidden-effect half of the generalisation benchmark (issue 21): its generator sizes
 effects into the band, writes no truth where the library looks, and leaves a no-effect
-case linear; its scorer reads kinds, locations and stop sides as documented."""
+case linear; its scorer reads kinds, locations and stop sides as documented; its oracle
+maps the truth into the library's elements and waits for the answers."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
 import pytest
 
-from benchmarks.generalisation import hidden, synthesis
-from benchmarks.generalisation.blind import blindfold, truth_path
+from benchmarks.generalisation import hidden, oracle, synthesis
+from benchmarks.generalisation.blind import answer_path, blindfold, truth_path, write_json
 from benchmarks.generalisation.cases import Setup
 from benchmarks.generalisation.hidden_scoring import claim, score_hidden, truth_claim
 from benchmarks.generalisation.structures import GROUND, Structure
@@ -130,3 +132,44 @@ def test_a_clearance_gap_beyond_the_measured_motion_makes_a_stop():
     motion = {"x3": np.array([-1.0, 0.0, 2.0])}
     assert claim(ground, motion) == ("stop", frozenset((3, GROUND)), "positive")
     assert claim(ground, {"x3": np.array([-2.0, 2.0])})[0] == "clearance"
+
+
+def test_oracle_maps_the_truth_into_the_libraries_elements_and_coordinate():
+    # a contact below -g- and above g+ of the rest position is below -(g- + c) and above
+    # g+ - c of a coordinate whose zero is c above rest (module docstring of .oracle)
+    both = {"kind": "clearance", "dof": 2, "ref": 0, "gaps": [0.3, 0.5]}
+    element = oracle.library_element(both, 0.1)
+    assert (element.dof, element.ref) == ("x2", "x0")
+    assert element.gaps == pytest.approx((0.4, 0.4))
+    stop = oracle.library_element({"kind": "clearance", "dof": 1, "ref": GROUND,
+                                   "gaps": [math.inf, 0.5]}, -0.2)
+    assert (stop.side, stop.ref, stop.gaps[1]) == ("positive", None, pytest.approx(0.7))
+    cubic = oracle.library_element({"kind": "cubic", "dof": 1, "ref": GROUND})
+    quadratic = oracle.library_element({"kind": "quadratic", "dof": 1, "ref": GROUND})
+    assert (cubic.exponent, cubic.signed, quadratic.exponent, quadratic.signed) == (
+        3.0, True, 2.0, False)
+    friction = oracle.library_element({"kind": "coulomb", "dof": 1, "ref": 0, "width": 0.01})
+    assert (friction.kind, friction.width) == ("coulomb_friction", 0.01)
+
+
+def test_oracle_waits_for_the_answers_then_tells_diagnosis_from_identification(tmp_path):
+    cases = ["case0000", "case0001", "case0002"]
+    (tmp_path / "cases").mkdir()
+    (tmp_path / "cases" / "index.json").write_text(json.dumps(
+        {"seed": 1, "count": 3, "part": "hidden", "cases": cases}))
+    element = {"kind": "cubic", "kind_class": "cubic", "dof": 0, "ref": GROUND}
+    truth = {c: {"elements": [element], "plan": {"quantity": "velocity"}} for c in cases}
+    truth_path(tmp_path).parent.mkdir()
+    truth_path(tmp_path).write_text(json.dumps({"cases": truth}))
+    with pytest.raises(ValueError, match="no answer"):
+        oracle.run_oracle(tmp_path)
+    # loop at the floor; loop off but the truth at the floor; both off (floor 1 %)
+    for case, loop, true in zip(cases, (1.5, 9.0, 9.0), (1.2, 1.9, 5.0), strict=True):
+        write_json(answer_path(tmp_path, case),
+                   {"status": "ok", "revisions": [{"nrmse_pct": loop}]})
+        write_json(oracle.oracle_path(tmp_path, case),
+                   {"status": "ok", "noise_floor_pct": 1.0, "linear_pct": 10.0,
+                    "oracle_pct": true})
+    _, totals = oracle.oracle_report(tmp_path)
+    assert totals == {"cases": 3, "loop_floor_reached": 1, "oracle_floor_reached": 2,
+                      "diagnosis_limited": 1, "identification_limited": 1}
