@@ -100,8 +100,9 @@ ORACLE_HEADER = """# Generalisation benchmark, hidden-effect part: the loop agai
 
 Produced by `benchmarks/generalisation.py --part hidden --phase oracle` after the answers
 (`benchmarks/generalisation/oracle.py`): per case with an effect, the true elements added
-to the library's linear revision in one study revision (a clearance's gaps mapped into the
-measured coordinate by one offset fitted with the poles held). A failure of the loop is
+to the library's linear revision in one study revision (a clearance's gaps as drawn, and
+moved into the measured coordinate by the offset that fits with the poles held: the
+better validated is kept, so the oracle bounds what the loop could reach). A failure of the loop is
 diagnosis-limited when the true elements reach twice the noise floor, and
 identification-limited when they do not: then no diagnosis could have reached it."""
 
