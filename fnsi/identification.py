@@ -146,8 +146,8 @@ class IdentificationSettings:
         is chosen by simulation (``order_rule="simulation"``, as every study revision
         is; a study weights its other identifications alike): their noise, white in
         the measured quantity, is coloured as 1 / f^p once integrated into the
-        displacements FNSI fits. A 5-DOF chain's cubic spring
-        measured in acceleration with 0.5 % noise: at the true order the unweighted fit
+        displacements FNSI fits. A 5-DOF chain's cubic spring measured in acceleration
+        with 0.5 % noise: at the true order the unweighted fit
         took a pole at the band's noisy lower edge for the top mode and its refinement
         stopped at 18 times the floor; weighted, every mode was found and the
         refinement reached 1.07 times it. The modal rule counts the poles the
