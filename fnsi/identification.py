@@ -53,7 +53,7 @@ from fnsi.offsets import Offsets, measured_offsets, remove_offsets
 from fnsi.oversampling import oversampled_bases, oversampling_factor
 from fnsi.refinement import Refinement, refine
 from fnsi.separability import Separability, separability
-from fnsi.simulation import FEEDTHROUGH
+from fnsi.simulation import FEEDTHROUGH, NoSteadyStateError
 from fnsi.simulation_order import SimulationOrder, simulation_order
 from fnsi.spectra import (
     INTEGRATIONS,
@@ -86,12 +86,11 @@ from fnsi.subspace import (
     auto_block_rows,
     check_dimensions,
     decompose,
-    input_matrices,
     memory_estimate,
 )
 from fnsi.uncertainty import Uncertainty, propagate
 from fnsi.units import ModelUnits
-from fnsi.validation import ERROR_BAND_FACTOR, compare
+from fnsi.validation import ERROR_BAND_FACTOR, Comparison, compare
 
 Progress = Callable[[float, str], None]
 
@@ -734,35 +733,81 @@ def _by_simulation(measurement: Measurement, settings: IdentificationSettings,
     then decides)."""
     if settings.order != "auto" or settings.order_rule != "simulation" or diagram is None:
         return None
+
+    def model_at(order: int, own_feedthrough: bool = True) -> StateSpaceModel:
+        return _stabilised(decomposition.model(order, own_feedthrough=own_feedthrough),
+                           decomposition, own_feedthrough=own_feedthrough)[0]
+
     return simulation_order(
-        diagram.orders, lambda order: _stabilised(decomposition.model(order), decomposition)[0],
-        measurement.select(settings.inputs, settings.outputs),
+        diagram.orders, model_at, measurement.select(settings.inputs, settings.outputs),
         discard_periods=settings.discard_periods, band_high=settings.band[1],
-        offsets_removed=settings.remove_offsets, near=near)
+        offsets_removed=settings.remove_offsets, near=near,
+        repaired_at=(lambda order: model_at(order, own_feedthrough=False))
+        if decomposition.elements else None)
 
 
-def _with_motion_offsets(model: StateSpaceModel, data: Measurement,
-                         settings: IdentificationSettings) -> StateSpaceModel:
-    """The model with the offsets of its elements' motion with which it simulates the
-    estimation record ``data`` with the mean the elements were identified on
-    (:attr:`fnsi.statespace.StateSpaceModel.motion_offsets`, :mod:`fnsi.offsets`); a
-    linear model, or one that cannot be simulated (its comparison will say why), as it
-    is."""
-    if not model.elements:
-        return model
-    for feedthrough in FEEDTHROUGH:   # as the study repairs a folding output equation
+def _estimation_comparison(model: StateSpaceModel, data: Measurement,
+                           settings: IdentificationSettings) -> Comparison | ValueError:
+    """The model's simulation of the estimation record ``data``, its nonlinear
+    feed-through implicit, else explicit as a study compares it (implicit only for a
+    model to be refined, which :func:`fnsi.refinement.refine` simulates so); else why it
+    failed."""
+    failure = ValueError("no feed-through treatment")
+    # as the study repairs a folding output equation
+    for feedthrough in FEEDTHROUGH[:1] if settings.refine else FEEDTHROUGH:
         try:
-            comparison = compare(model, data, discard_periods=settings.discard_periods,
-                                 band_high=settings.band[1], feedthrough=feedthrough,
-                                 offsets_removed=settings.remove_offsets)
-        except ValueError:
-            continue
-        return dataclasses.replace(model, motion_offsets=comparison.motion_offsets)
-    return model
+            return compare(model, data, discard_periods=settings.discard_periods,
+                           band_high=settings.band[1], feedthrough=feedthrough,
+                           offsets_removed=settings.remove_offsets)
+        except NoSteadyStateError as error:   # the linear part's, shared by both
+            return error
+        except ValueError as error:
+            failure = error
+    return failure
 
 
-def _stabilised(model: StateSpaceModel, decomposition: SubspaceDecomposition
-                ) -> tuple[StateSpaceModel, tuple[str, ...]]:
+def _simulable(model: StateSpaceModel, decomposition: SubspaceDecomposition,
+               data: Measurement, settings: IdentificationSettings, *, stabilise: bool,
+               ) -> tuple[StateSpaceModel, tuple[str, ...], Comparison | ValueError]:
+    """The model, or where its simulation of the estimation record diverges or folds
+    its output equation the same order with each element's own feed-through held at
+    zero (:mod:`fnsi.feedthrough`) when that one simulates, with a note saying so; and
+    its comparison on ``data`` (or why it failed)."""
+    comparison = _estimation_comparison(model, data, settings)
+    if (not model.elements or not isinstance(comparison, ValueError)
+            or isinstance(comparison, NoSteadyStateError)):
+        return model, (), comparison
+    repaired = decomposition.model(model.order, own_feedthrough=False)
+    if stabilise:
+        repaired = _stabilised(repaired, decomposition, own_feedthrough=False)[0]
+    repaired_comparison = _estimation_comparison(repaired, data, settings)
+    if isinstance(repaired_comparison, ValueError):
+        return model, (), comparison
+    return repaired, (_repair_note(model.order, str(comparison)),), repaired_comparison
+
+
+def _repair_note(order: int, failure: str) -> str:
+    """What the repair of a folding or diverging model changed, and why."""
+    return (f"the order-{order} model with its elements could not be simulated ({failure}); "
+            "B and D were fitted again with each element's own nonlinear feed-through "
+            "held at zero (the response of a complete structure measured in displacement "
+            "within one sample), which simulates")
+
+
+def _with_motion_offsets(model: StateSpaceModel, comparison: Comparison | ValueError | None
+                         ) -> StateSpaceModel:
+    """The model with the offsets of its elements' motion with which it simulates the
+    estimation record with the mean the elements were identified on
+    (:attr:`fnsi.statespace.StateSpaceModel.motion_offsets`, :mod:`fnsi.offsets`) by its
+    ``comparison``; a linear model, or one that cannot be simulated (its comparison will
+    say why), as it is."""
+    if not model.elements or not isinstance(comparison, Comparison):
+        return model
+    return dataclasses.replace(model, motion_offsets=comparison.motion_offsets)
+
+
+def _stabilised(model: StateSpaceModel, decomposition: SubspaceDecomposition, *,
+                own_feedthrough: bool = True) -> tuple[StateSpaceModel, tuple[str, ...]]:
     """The model with its unstable poles reflected inside the unit circle and B, D fitted
     again (:func:`fnsi.stabilisation.reflect_unstable_poles`), and a note saying so.
 
@@ -770,13 +815,14 @@ def _stabilised(model: StateSpaceModel, decomposition: SubspaceDecomposition
     physical modes; its unstable poles are not among them (they fit noise or dynamics
     outside the band), so reflecting them keeps every kept mode and its shape and makes the
     model simulable. The note names the poles and the change of the fitted response.
+    B and D are fitted as the model's were (``own_feedthrough``: :meth:`fnsi.subspace.
+    SubspaceDecomposition.model`).
     """
     A, reflected = reflect_unstable_poles(model.A)
     if reflected.size == 0:
         return model, ()
     spectra = decomposition.spectra
-    B, D = input_matrices(A, model.C, spectra.inputs, spectra.outputs, spectra.z,
-                          noise_covariance=spectra.input_noise_covariance)
+    B, D = decomposition.input_matrices(A, model.C, own_feedthrough=own_feedthrough)
     stable = dataclasses.replace(model, A=A, B=B / decomposition.input_scale,
                                  D=D / decomposition.input_scale)
     lines = np.unique(spectra.frequencies)
@@ -789,6 +835,29 @@ def _stabilised(model: StateSpaceModel, decomposition: SubspaceDecomposition
                     f"1/conj(z): same frequency, damping of opposite sign) and B, D fitted "
                     f"again, so the model can be simulated; its frequency response over the "
                     f"band changed by {change:.2g} % (RMS)",)
+
+
+def _model(decomposition: SubspaceDecomposition, order: int,
+           by_simulation: SimulationOrder | None, data: Measurement,
+           settings: IdentificationSettings, *, stabilise: bool,
+           ) -> tuple[StateSpaceModel, tuple[str, ...], Comparison | ValueError | None]:
+    """The order's model with its notes, repaired where it cannot be simulated
+    (:func:`_simulable`; the order search already knows which of its orders needed it),
+    unstable poles reflected when ``stabilise``, and its comparison on the estimation
+    record (None for a linear model, which needs none)."""
+    own = by_simulation is None or not by_simulation.chosen_repaired
+    model = decomposition.model(order, own_feedthrough=own)
+    notes: tuple[str, ...] = ()
+    if stabilise:
+        model, notes = _stabilised(model, decomposition, own_feedthrough=own)
+    if not model.elements:
+        return model, notes, None
+    if not own:
+        repair = _repair_note(order, "in the search of the order it diverged or folded")
+        return model, (*notes, repair), _estimation_comparison(model, data, settings)
+    model, repair, comparison = _simulable(model, decomposition, data, settings,
+                                           stabilise=stabilise)
+    return model, notes + repair, comparison
 
 
 def _instability(model: StateSpaceModel, diagram: StabilisationDiagram | None
@@ -879,12 +948,10 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         diagram = order_chosen(diagram, contributions)   # the simulation rule's fallback
     order = _choose_order(settings, diagram) if by_simulation is None else by_simulation.order
     clock.done("stabilisation", 0.7, f"order {order}")
-    model = decomposition.model(order)
-    notes: tuple[str, ...] = ()
-    if settings.order == "auto" or reflect_unstable:
-        model, notes = _stabilised(model, decomposition)
+    model, notes, comparison = _model(decomposition, order, by_simulation, data, settings,
+                                      stabilise=settings.order == "auto" or reflect_unstable)
     if not settings.refine:   # a refinement finds the offsets of the model it keeps
-        model = _with_motion_offsets(model, data, settings)
+        model = _with_motion_offsets(model, comparison)
     clock.done("model", 0.85, "B and D estimated")
     result = dataclasses.replace(
         _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
@@ -908,7 +975,7 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
                             progress=None if progress is None else
                             lambda f, m: progress(0.9 + 0.1 * f, m))
     except ValueError as error:    # FNSI's model stands; the result says why
-        refinement = Refinement.refused(_with_motion_offsets(result.model, data, settings),
+        refinement = Refinement.refused(_with_motion_offsets(result.model, comparison),
                                         str(error))
     clock.done("refinement", 1.0, refinement.summary)
     return dataclasses.replace(result, model=refinement.model, refinement=refinement)

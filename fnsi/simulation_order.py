@@ -66,17 +66,29 @@ class SimulationOrder:
     noise_floor_percent : float
         Noise floor of the estimation record on the same lines [%] (0 with one kept
         period).
+    repaired : tuple of int
+        Orders whose model could be simulated only repaired (``repaired_at`` of
+        :func:`simulation_order`: each element's own feed-through held at zero,
+        :mod:`fnsi.feedthrough`); their errors are the repaired model's.
     """
 
     order: int
     errors: dict[int, float]
     noise_floor_percent: float
+    repaired: tuple[int, ...] = ()
+
+    @property
+    def chosen_repaired(self) -> bool:
+        """Whether the chosen order's model is the repaired one."""
+        return self.order in self.repaired
 
     def to_json(self) -> dict:
-        """``{"order", "errors_percent": {order: NRMSE}, "noise_floor_percent"}``."""
+        """``{"order", "errors_percent": {order: NRMSE}, "noise_floor_percent",
+        "repaired_orders"}``."""
         return {"order": self.order,
                 "errors_percent": {str(k): json_float(v) for k, v in self.errors.items()},
-                "noise_floor_percent": json_float(self.noise_floor_percent)}
+                "noise_floor_percent": json_float(self.noise_floor_percent),
+                "repaired_orders": list(self.repaired)}
 
 
 def pooled_error(errors: ModelErrors) -> tuple[float, float]:
@@ -93,6 +105,7 @@ def pooled_error(errors: ModelErrors) -> tuple[float, float]:
 def simulation_order(orders: Sequence[int], model_at: Callable[[int], StateSpaceModel],
                      estimation: Measurement, *, discard_periods: int, band_high: float,
                      offsets_removed: bool = False, near: int | None = None,
+                     repaired_at: Callable[[int], StateSpaceModel] | None = None,
                      ) -> SimulationOrder | None:
     """The lowest order whose simulation of the estimation record is within
     :data:`TOLERANCE` of the best (module docstring).
@@ -122,6 +135,10 @@ def simulation_order(orders: Sequence[int], model_at: Callable[[int], StateSpace
     near : int, optional
         An order the choice is expected near (the order of a model with one element
         fewer, whose search was already made): the search starts around it.
+    repaired_at : callable(order) -> StateSpaceModel, optional
+        The repaired model of an order, simulated when that of ``model_at`` cannot be
+        (it diverged or had no solution of a step, implicitly and explicitly; not when
+        it found no steady state, a failure of the linear part that the repair shares).
 
     Returns
     -------
@@ -130,15 +147,14 @@ def simulation_order(orders: Sequence[int], model_at: Callable[[int], StateSpace
     """
     orders = sorted(orders)
     errors: dict[int, float] = {}
+    repaired: list[int] = []
     floor = [0.0]
     # one realisation tells the orders apart at half the cost of two
     record = replace(estimation, u=estimation.u[:1], y=estimation.y[:1])
 
-    def evaluate(order: int) -> None:
-        if order in errors:
-            return
-        errors[order] = math.inf
-        model = model_at(order)
+    def simulated(model: StateSpaceModel) -> float | None:
+        """The model's error (the floor noted), inf when it found no steady state, None
+        when it diverged or a step had no solution."""
         # the study repairs an output equation that folds by solving it explicitly
         for feedthrough in FEEDTHROUGH:
             try:
@@ -150,11 +166,22 @@ def simulation_order(orders: Sequence[int], model_at: Callable[[int], StateSpace
                 # the linear part's dynamics, which the explicit feed-through shares (on
                 # a 5-DOF chain's diagnosis every order that did not settle implicitly
                 # failed explicitly too, at 30 periods a try: a fifth of the search)
-                return
+                return math.inf
             except ValueError:   # diverged, or no solution of a step
                 continue
-            errors[order], floor[0] = pooled_error(comparison.errors)
+            error, floor[0] = pooled_error(comparison.errors)
+            return error
+        return None
+
+    def evaluate(order: int) -> None:
+        if order in errors:
             return
+        error = simulated(model_at(order))
+        if error is None and repaired_at is not None:
+            error = simulated(repaired_at(order))
+            if error is not None and math.isfinite(error):
+                repaired.append(order)
+        errors[order] = math.inf if error is None else error
 
     if near is None:
         for order in dict.fromkeys([*orders[::2], orders[-1]]):
@@ -165,7 +192,8 @@ def simulation_order(orders: Sequence[int], model_at: Callable[[int], StateSpace
         k = orders.index(chosen)
         skipped = [o for o in orders[max(k - 1, 0): k + 2] if o not in errors]
         if not skipped:
-            return SimulationOrder(chosen, dict(sorted(errors.items())), floor[0])
+            return SimulationOrder(chosen, dict(sorted(errors.items())), floor[0],
+                                   tuple(sorted(repaired)))
         for order in skipped:
             evaluate(order)
     return None

@@ -77,6 +77,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from fnsi.feedthrough import own_feedthrough_constraints
 from fnsi.spectra import Spectra
 from fnsi.statespace import StateSpaceModel
 
@@ -513,6 +514,18 @@ class SubspaceDecomposition:
             A = np.linalg.solve((identity + self.warp * A).T, (A + self.warp * identity).T).T
         return A, self.observability[: self.n_outputs, :n].copy()
 
+    def input_matrices(self, A: np.ndarray, C: np.ndarray, *, own_feedthrough: bool = True
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """B^e (n, q) and D^e (l, q) of the scaled extended inputs for A and C
+        (:func:`input_matrices`, with the noise compensation of the spectra), each
+        element's own feed-through held at zero unless ``own_feedthrough``."""
+        sp = self.spectra
+        constraints = None if own_feedthrough else own_feedthrough_constraints(
+            C, self.elements, sp.output_names, self.n_inputs)
+        return input_matrices(A, C, sp.inputs, sp.outputs, sp.z,
+                              noise_covariance=sp.input_noise_covariance,
+                              constraints=constraints)
+
     def rows(self) -> np.ndarray:
         """Values (N, i) of the row functions the data matrices were built with on the
         lines (:func:`row_basis`: the orthonormal polynomials, or the powers when
@@ -520,13 +533,16 @@ class SubspaceDecomposition:
         basis = "powers" if self.recurrence is None else "orthonormal"
         return row_basis(warp_lines(self.spectra.z, self.warp), self.block_rows, basis)[0]
 
-    def model(self, order: int) -> StateSpaceModel:
+    def model(self, order: int, *, own_feedthrough: bool = True) -> StateSpaceModel:
         """Identified model of order n with B^e, D^e from least squares over all lines.
 
         Parameters
         ----------
         order : int
             Model order n <= max_order.
+        own_feedthrough : bool
+            False: each element's own feed-through is held at zero (the repair of a
+            model whose simulation folds, :mod:`fnsi.feedthrough`).
 
         Returns
         -------
@@ -534,9 +550,8 @@ class SubspaceDecomposition:
             B and D columns: the m inputs, then the basis functions (scaling undone).
         """
         A, C = self.state_matrices(order)
+        B, D = self.input_matrices(A, C, own_feedthrough=own_feedthrough)
         sp = self.spectra
-        B, D = input_matrices(A, C, sp.inputs, sp.outputs, sp.z,
-                              noise_covariance=sp.input_noise_covariance)
         return StateSpaceModel(
             A=A, B=B / self.input_scale, C=C, D=D / self.input_scale, fs=sp.fs,
             input_names=sp.input_names[: self.n_inputs], output_names=sp.output_names,
@@ -673,6 +688,7 @@ def band_warp(z: np.ndarray) -> float:
 
 def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
                    z: np.ndarray, *, noise_covariance: np.ndarray | None = None,
+                   constraints: np.ndarray | None = None,
                    ) -> tuple[np.ndarray, np.ndarray]:
     """B^e and D^e minimising sum_k ||Y(k) - (C (z_k I - A)^-1 B^e + D^e) E(k)||^2.
 
@@ -704,6 +720,10 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
         Noise covariance of one realisation's E(k) with itself and with Y(k),
         [E[dE dE^H], E[dE dY^H]] (``Spectra.input_noise_covariance``); compensated when
         given.
+    constraints : ndarray, shape (k, q (n + l)), optional
+        Linear equalities L theta = 0 on the unknowns, theta the columns of [B^e; D^e]
+        stacked (:func:`fnsi.feedthrough.own_feedthrough_constraints`); the normal
+        equations are solved in the null space of L.
 
     Returns
     -------
@@ -743,7 +763,12 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
                                  axis=1).real.reshape(q * m)
         alpha = compensation_scale(G, G_noise)
         G, g = G - alpha * G_noise, g - alpha * g_noise
-    theta = solve_normal_equations(G, g).reshape(q, m).T
+    if constraints is None or constraints.shape[0] == 0:
+        theta = solve_normal_equations(G, g)
+    else:
+        N = scipy.linalg.null_space(constraints)
+        theta = N @ solve_normal_equations(N.T @ G @ N, N.T @ g)
+    theta = theta.reshape(q, m).T
     return theta[:n], theta[n:]
 
 

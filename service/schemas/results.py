@@ -149,6 +149,10 @@ class SimulationOrderSummary(StoredDocument):
     noise_floor_percent: float | None = Field(
         description="Noise floor of the estimation data on the same lines [%].",
         examples=[0.43])
+    repaired_orders: list[int] = Field(
+        [], description="Orders whose model could be simulated only with each element's "
+        "own nonlinear feed-through held at zero (fnsi.feedthrough); their errors are "
+        "those of the repaired model.", examples=[[6]])
 
 
 class IdentificationJobResult(StoredDocument):

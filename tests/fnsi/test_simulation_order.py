@@ -4,6 +4,7 @@ the three modes above the band through its harmonics."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -12,7 +13,13 @@ import scipy.linalg
 
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.nonlinear import NonlinearElement
-from fnsi.simulation_order import _lowest_within, _search_near, allowed_square, pooled_error
+from fnsi.simulation_order import (
+    _lowest_within,
+    _search_near,
+    allowed_square,
+    pooled_error,
+    simulation_order,
+)
 from fnsi.validation import compare_identified
 
 BAND = (3.0, 16.0)          # the first mode (9.84 Hz) only; the others at 18.7-30.3 Hz
@@ -113,3 +120,24 @@ def test_a_lower_local_minimum_of_the_sparse_search_is_searched_around():
     errors.clear()
     _search_near(orders, 34, errors, lambda order: errors.setdefault(order, curve[order]))
     assert 12 not in errors
+
+
+def test_an_order_whose_model_diverges_is_searched_with_its_repair(records):
+    """A model that diverges, implicitly and explicitly, counts with its repaired model
+    (fnsi.feedthrough) when one is given, and the search says which orders needed it."""
+    (estimation, _), _ = records
+    good = identify(estimation, IdentificationSettings(
+        band=BAND, elements=(CUBIC,), order=8, uncertainty=False, harmonic_band=True)).model
+    # a feed-through of the softening sign, 1e5 / 3 times what folds the implicit step at
+    # the largest motion: the explicit step's output leaves any bound the linear part allows
+    peak = np.abs(estimation.y[..., estimation.output_names.index("a")]).max()
+    D = good.D.copy()
+    D[good.output_names.index("a"), good.n_inputs] = 1e5 / (3 * peak**2)
+    broken = dataclasses.replace(good, D=D)
+    search = dict(discard_periods=1, band_high=BAND[1])
+    assert simulation_order([8], lambda order: broken, estimation, **search) is None
+    repaired = simulation_order([8], lambda order: broken, estimation, **search,
+                                repaired_at=lambda order: good)
+    assert repaired.order == 8 and repaired.repaired == (8,) and repaired.chosen_repaired
+    assert math.isfinite(repaired.errors[8])
+    assert repaired.to_json()["repaired_orders"] == [8]

@@ -1,0 +1,111 @@
+"""Each element's own nonlinear feed-through held at zero (fnsi.feedthrough): the
+constrained least squares of B^e and D^e against exact and noisy spectra, and the repair
+of a model whose simulation folds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fnsi.feedthrough import own_feedthrough_constraints
+from fnsi.identification import IdentificationSettings, identify
+from fnsi.nonlinear import NonlinearElement
+from fnsi.subspace import input_matrices
+
+OUTPUTS = ("y0", "y1", "y2")
+ELEMENTS = (NonlinearElement("coulomb_friction", "y0", "y1", width=0.01),   # velocity basis
+            NonlinearElement("polynomial", "y2", exponent=3.0))
+
+
+def _problem(seed: int = 0):
+    """A stable order-4 system with 3 outputs, 1 input and the two elements' bases, and
+    random extended-input spectra on 120 lines."""
+    rng = np.random.default_rng(seed)
+    poles = 0.95 * np.exp(1j * np.array([0.3, 0.7]))
+    A = np.zeros((4, 4))
+    for k, p in enumerate(poles):
+        A[2 * k: 2 * k + 2, 2 * k: 2 * k + 2] = [[p.real, -p.imag], [p.imag, p.real]]
+    C = rng.standard_normal((3, 4))
+    z = np.exp(1j * np.linspace(0.1, 1.2, 120))
+    E = rng.standard_normal((1, 120, 3)) + 1j * rng.standard_normal((1, 120, 3))
+    return A, C, z, E
+
+
+def _response(A, C, B, D, z, E):
+    H = np.stack([C @ np.linalg.solve(zk * np.eye(A.shape[0]) - A, B) + D for zk in z])
+    return np.einsum("kiq,rkq->rki", H, E)
+
+
+def _theta(B, D):
+    return np.concatenate([B, D]).T.ravel()
+
+
+def _cost(A, C, B, D, z, E, Y):
+    return float(np.sum(np.abs(Y - _response(A, C, B, D, z, E)) ** 2))
+
+
+def test_the_constraints_are_the_elements_own_feedthrough():
+    _, C, _, _ = _problem()
+    L = own_feedthrough_constraints(C, ELEMENTS, OUTPUTS, n_inputs=1)
+    # friction: p D and p C B of its column; cubic: p D of its column
+    assert L.shape == (3, 3 * (4 + 3))
+    rng = np.random.default_rng(1)
+    B, D = rng.standard_normal((4, 3)), rng.standard_normal((3, 3))
+    p_friction, p_cubic = np.array([1.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    expected = [p_friction @ D[:, 1], p_friction @ C @ B[:, 1], p_cubic @ D[:, 2]]
+    np.testing.assert_allclose(L @ _theta(B, D), expected, rtol=1e-12)
+
+
+def test_constrained_least_squares_is_exact_on_exact_data_and_optimal_on_noisy_data():
+    A, C, z, E = _problem()
+    L = own_feedthrough_constraints(C, ELEMENTS, OUTPUTS, n_inputs=1)
+    rng = np.random.default_rng(2)
+    # a truth that satisfies the constraints: a random one projected on their null space
+    N = np.linalg.svd(L)[2][L.shape[0]:].T
+    theta = N @ N.T @ rng.standard_normal(L.shape[1])
+    truth = theta.reshape(3, 7).T
+    B0, D0 = truth[:4], truth[4:]
+    Y = _response(A, C, B0, D0, z, E)
+    B, D = input_matrices(A, C, E, Y, z, constraints=L)
+    # exact data: the truth back to rounding (the normal equations square a condition
+    # number of about 1e2)
+    np.testing.assert_allclose(np.concatenate([B, D]), truth, atol=1e-9)
+    noisy = Y + 0.05 * np.abs(Y).mean() * (rng.standard_normal(Y.shape)
+                                           + 1j * rng.standard_normal(Y.shape))
+    B, D = input_matrices(A, C, E, noisy, z, constraints=L)
+    Bu, Du = input_matrices(A, C, E, noisy, z)
+    # the equalities hold to rounding where the free fit breaks them by the noise
+    assert np.abs(L @ _theta(B, D)).max() < 1e-12 * np.abs(_theta(B, D)).max()
+    assert np.abs(L @ _theta(Bu, Du)).max() > 1e-3 * np.abs(_theta(Bu, Du)).max()
+    # the least squares among the admissible: any admissible move costs more
+    best = _cost(A, C, B, D, z, E, noisy)
+    assert _cost(A, C, Bu, Du, z, E, noisy) < best
+    for _ in range(5):
+        move = (N @ rng.standard_normal(N.shape[1])).reshape(3, 7).T * 1e-3
+        assert _cost(A, C, B + move[:4], D + move[4:], z, E, noisy) > best
+
+
+@pytest.fixture(scope="module")
+def stiff_friction(chain, simulate_record):
+    """Coulomb friction regularised over 0.3 mm/s between c and b of a 3-DOF chain
+    (12-29 Hz), band 10-33 Hz at fs = 200 Hz, displacement with 1 % noise: FNSI's
+    order-6 feed-through folds the friction's implicit step."""
+    width = 3e-4
+    structure = chain(3, (NonlinearElement("coulomb_friction", "c", "b", width=width,
+                                           coefficients=(0.3,)),))
+    record = simulate_record(structure, ["a"], noise=0.01, periods=4, seed=3,
+                             band=(10.0, 33.0))
+    return record, NonlinearElement("coulomb_friction", "c", "b", width=width)
+
+
+def test_a_model_whose_friction_step_folds_is_refined_from_its_repair(stiff_friction):
+    record, friction = stiff_friction
+    settings = IdentificationSettings(band=(10.0, 33.0), order=6, discard_periods=1,
+                                      elements=(friction,), refine=True, uncertainty=False)
+    result = identify(record, settings)
+    assert any("own nonlinear feed-through held at zero" in w for w in result.warnings)
+    # FNSI's own model could not start the refinement; its repair did, and the
+    # refinement more than halved the estimation error (measured 9.3 % -> 4.6 %)
+    refinement = result.refinement
+    assert refinement.iterations >= 1, refinement.summary
+    assert refinement.final_percent < 0.6 * refinement.initial_percent
