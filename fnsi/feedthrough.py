@@ -22,8 +22,8 @@ and no refinement could start.
 
 Held at zero, the element's own feed-through (its relative motion's response to its own
 bases within the sample) is that of a complete structure measured in displacement: the
-model then always simulates, and its fit over the band changes only through the
-parameters the band barely fixed. The same grid then refined from 18.7 % to 1.85 % of
+element's own step can no longer fold, and the fit over the band changes only through
+the parameters the band barely fixed. The same grid then refined from 18.7 % to 1.85 % of
 simulation error (noise floor 0.80 %). The repair is used only where the unconstrained
 model cannot be simulated (:func:`fnsi.identification.identify`, :func:`fnsi.
 simulation_order.simulation_order`), so models whose feed-through is physical keep it.

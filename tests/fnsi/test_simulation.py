@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import optimize, signal
 
+from fnsi.identification import IdentificationSettings, identify
 from fnsi.nonlinear import NonlinearElement
 from fnsi.simulation import SimulationDivergedError, simulate, simulate_periodic
 from fnsi.statespace import StateSpaceModel
@@ -400,3 +401,25 @@ def test_the_output_mean_is_what_the_elements_see_and_the_offsets_keep_it(force)
                                u, output_mean=np.full(1, 1.0), **steady)  # ignored
     np.testing.assert_allclose(frozen.y, centred.y, rtol=0,
                                atol=1e-7 * np.abs(centred.y).max())
+
+
+def test_a_steep_friction_law_that_pushes_back_is_solved_at_every_step(chain, simulate_record):
+    """Coulomb friction regularised over 0.1 mm/s between c and b of a 3-DOF chain, band
+    10-33 Hz at 200 Hz: FNSI's order-6 model has the pushing-back feed-through, 40 times
+    the law's slope, where Newton's full step cycles from the first sample (as on arctan
+    from afar); halved until the residual falls, it converges, so the model simulates
+    and refines (measured 12.7 % -> 1.87 % on the estimation record, floor 0.57 %) with
+    no repair of its feed-through."""
+    width = 1e-4
+    structure = chain(3, (NonlinearElement("coulomb_friction", "c", "b", width=width,
+                                           coefficients=(0.3,)),))
+    record = simulate_record(structure, ["a"], noise=0.01, periods=4, seed=3,
+                             band=(10.0, 33.0))
+    friction = NonlinearElement("coulomb_friction", "c", "b", width=width)
+    result = identify(record, IdentificationSettings(
+        band=(10.0, 33.0), order=6, discard_periods=1, elements=(friction,), refine=True,
+        uncertainty=False))
+    refinement = result.refinement
+    assert refinement.iterations >= 1, refinement.summary
+    assert refinement.final_percent < 0.2 * refinement.initial_percent
+    assert not any("feed-through held at zero" in w for w in result.warnings)
