@@ -37,6 +37,12 @@ import numpy as np
 
 from fnsi.nonlinear import NonlinearElement
 from fnsi.simulation import element_incidence
+from fnsi.statespace import StateSpaceModel
+
+ROUNDING = 1e-9
+"""Largest |L theta| of :func:`own_feedthrough_free`, relative to the sum of its terms'
+magnitudes: a repaired model's is about 1e-15 (rounding of the null-space solve); a free
+fit's is of order one."""
 
 
 def own_feedthrough_constraints(C: np.ndarray, elements: Sequence[NonlinearElement],
@@ -83,3 +89,15 @@ def own_feedthrough_constraints(C: np.ndarray, elements: Sequence[NonlinearEleme
                 rows.append(row)
         column += element.n_basis
     return np.array(rows).reshape(-1, q * width)
+
+
+def own_feedthrough_free(model: StateSpaceModel) -> bool:
+    """Whether each element's own feed-through of ``model`` is zero to rounding: a repaired
+    model's, which the models derived from it keep (:func:`fnsi.oversampling.finer_model`,
+    the noise perturbations of :mod:`fnsi.uncertainty`). False for a linear model."""
+    if not model.elements:
+        return False
+    L = own_feedthrough_constraints(model.C, model.elements, model.output_names,
+                                    model.n_inputs)
+    theta = np.concatenate([model.B, model.D]).T.ravel()
+    return bool(np.all(np.abs(L @ theta) <= ROUNDING * (np.abs(L) @ np.abs(theta))))

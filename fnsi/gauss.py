@@ -14,15 +14,17 @@ from numba import njit
 @njit(cache=True, nogil=True)
 def solve_small(J, b):
     """Overwrite b with J^-1 b by Gaussian elimination with partial pivoting (J is
-    destroyed). Returns False, with b all NaN, when J is singular (a zero pivot).
+    destroyed). Returns the sign of det J: 0 (falsy), with b all NaN, when J is
+    singular (a zero pivot), else +1 or -1.
 
     Examples
     --------
     >>> J, b = np.array([[0.0, 2.0], [1.0, 1.0]]), np.array([2.0, 3.0])
     >>> solve_small(J, b), b.tolist()
-    (True, [2.0, 1.0])
+    (-1, [2.0, 1.0])
     """
     n = b.shape[0]
+    sign = 1
     for col in range(n):
         pivot = col
         for row in range(col + 1, n):
@@ -30,8 +32,11 @@ def solve_small(J, b):
                 pivot = row
         if J[pivot, col] == 0.0:
             b[:] = np.nan
-            return False
+            return 0
+        if J[pivot, col] < 0.0:
+            sign = -sign
         if pivot != col:
+            sign = -sign
             for j in range(n):
                 J[col, j], J[pivot, j] = J[pivot, j], J[col, j]
             b[col], b[pivot] = b[pivot], b[col]
@@ -45,4 +50,4 @@ def solve_small(J, b):
         for j in range(row + 1, n):
             acc -= J[row, j] * b[j]
         b[row] = acc / J[row, row]
-    return True
+    return sign

@@ -769,13 +769,13 @@ def _estimation_comparison(model: StateSpaceModel, data: Measurement,
 def _simulable(model: StateSpaceModel, decomposition: SubspaceDecomposition,
                data: Measurement, settings: IdentificationSettings, *, stabilise: bool,
                ) -> tuple[StateSpaceModel, tuple[str, ...], Comparison | ValueError]:
-    """The model, or where its simulation of the estimation record diverges or folds
-    its output equation the same order with each element's own feed-through held at
-    zero (:mod:`fnsi.feedthrough`) when that one simulates, with a note saying so; and
-    its comparison on ``data`` (or why it failed)."""
+    """The model, or where its simulation of the estimation record fails (diverges,
+    folds its output equation or finds no steady state) the same order with each
+    element's own feed-through held at zero (:mod:`fnsi.feedthrough`) when that one
+    simulates, with a note saying so; and its comparison on ``data`` (or why it
+    failed)."""
     comparison = _estimation_comparison(model, data, settings)
-    if (not model.elements or not isinstance(comparison, ValueError)
-            or isinstance(comparison, NoSteadyStateError)):
+    if not model.elements or not isinstance(comparison, ValueError):
         return model, (), comparison
     repaired = decomposition.model(model.order, own_feedthrough=False)
     if stabilise:
@@ -853,7 +853,7 @@ def _model(decomposition: SubspaceDecomposition, order: int,
     if not model.elements:
         return model, notes, None
     if not own:
-        repair = _repair_note(order, "in the search of the order it diverged or folded")
+        repair = _repair_note(order, "in the search of the order")
         return model, (*notes, repair), _estimation_comparison(model, data, settings)
     model, repair, comparison = _simulable(model, decomposition, data, settings,
                                            stabilise=stabilise)

@@ -58,8 +58,10 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+import scipy.linalg
 
 from fnsi.acquisition import decimate, upsample
+from fnsi.feedthrough import own_feedthrough_constraints, own_feedthrough_free
 from fnsi.nonlinear import NonlinearElement, NonlinearityKind
 from fnsi.simulation import simulate_periodic
 from fnsi.statespace import StateSpaceModel
@@ -179,6 +181,10 @@ def finer_model(model: StateSpaceModel, factor: int, frequencies: np.ndarray
 
     Notes
     -----
+    A model without its elements' own feed-through (a repaired one,
+    :func:`fnsi.feedthrough.own_feedthrough_free`) keeps none: its correction is fitted
+    under the same equalities, else the finer model's could fold again.
+
     A pole on the negative real axis (a discrete-time artefact at fs / 2, outside any
     band) has no real counterpart at the finer rate; it goes to the origin there and the
     band fit sets its residue.
@@ -211,13 +217,32 @@ def finer_model(model: StateSpaceModel, factor: int, frequencies: np.ndarray
     rhs = target.reshape(-1, target.shape[2])
     scale = np.linalg.norm(rows, axis=0)
     scale[scale == 0.0] = 1.0
-    correction = np.linalg.lstsq(rows / scale, np.concatenate([rhs.real, rhs.imag]),
-                                 rcond=None)[0] / scale[:, None]
+    rhs = np.concatenate([rhs.real, rhs.imag])
+    correction = np.linalg.lstsq(rows / scale, rhs, rcond=None)[0] / scale[:, None]
+    if own_feedthrough_free(model):
+        _keep_free(correction, np.concatenate([B, model.D]), rows, rhs, model)
     return StateSpaceModel(A=A, B=B + correction[:model.order],
                            C=model.C, D=model.D + correction[model.order:],
                            fs=factor * model.fs, input_names=model.input_names,
                            output_names=model.output_names, elements=model.elements,
                            motion_offsets=model.motion_offsets)
+
+
+def _keep_free(correction: np.ndarray, start: np.ndarray, rows: np.ndarray, rhs: np.ndarray,
+               model: StateSpaceModel) -> None:
+    """Solve the correction of each basis column again, in place, so that the finer
+    model keeps each element's own feed-through at zero as ``model`` has it (a repaired
+    model, :mod:`fnsi.feedthrough`): least squares x = x_0 + N y over the corrections
+    whose column start + x satisfies the element's equalities."""
+    width, q = start.shape
+    L = own_feedthrough_constraints(model.C, model.elements, model.output_names,
+                                    model.n_inputs).reshape(-1, q, width)
+    for a in range(model.n_inputs, q):
+        La = L[:, a][np.any(L[:, a] != 0.0, axis=1)]
+        x0 = np.linalg.lstsq(La, -La @ start[:, a], rcond=None)[0]
+        N = scipy.linalg.null_space(La)
+        y = np.linalg.lstsq(rows @ N, rhs[:, a] - rows @ x0, rcond=None)[0]
+        correction[:, a] = x0 + N @ y
 
 
 def simulate_oversampled(model: StateSpaceModel, u: np.ndarray, band_high: float,

@@ -97,8 +97,9 @@ MAX_HALVINGS = 30
 def _solve_step(z, z_hat, M, kinds, values, value_offsets, basis_offsets, g, gx, gv, step,
                 residual, z_trial, newton, J, max_iterations, tolerance):
     """Solve z = z_hat + M g(z) in place from the guess in ``z`` by Newton's method,
-    each step halved until it lowers the squared residual (at most :data:`MAX_HALVINGS`
-    times); g, gx, gv are left at the solution. Returns whether it converged.
+    each step that starts where the Jacobian's determinant is positive halved until it
+    lowers the squared residual (at most :data:`MAX_HALVINGS` times); g, gx, gv are left
+    at the solution. Returns whether it converged.
 
     The full step alone cycles on a steep monotone law: Coulomb friction regularised
     over 0.1 mm/s with a pushing-back feed-through 40 times its own slope (a 3-DOF chain,
@@ -108,6 +109,7 @@ def _solve_step(z, z_hat, M, kinds, values, value_offsets, basis_offsets, g, gx,
     n_z = z.shape[0]
     n_elements = kinds.shape[0]
     last = np.inf     # squared residual at the point the Newton step starts from
+    monotone = False
     length = 1.0
     halvings = 0
     iterations = 0
@@ -122,7 +124,7 @@ def _solve_step(z, z_hat, M, kinds, values, value_offsets, basis_offsets, g, gx,
             squared += residual[i] * residual[i]
         if worst <= tolerance * (np.max(np.abs(z_hat)) + np.max(np.abs(step))):
             return True
-        if not squared < last and halvings < MAX_HALVINGS:
+        if not squared < last and monotone and halvings < MAX_HALVINGS:
             length *= 0.5
             halvings += 1
             for i in range(n_z):
@@ -137,8 +139,14 @@ def _solve_step(z, z_hat, M, kinds, values, value_offsets, basis_offsets, g, gx,
                     J[i, e] -= M[i, j] * gx[j]
                     if n_z > n_elements:
                         J[i, n_elements + e] -= M[i, j] * gv[j]
-        if not solve_small(J, residual):   # singular, exactly at a fold
+        sign = solve_small(J, residual)
+        if sign == 0:   # singular, exactly at a fold
             return False
+        # det J > 0: the step starts where the equation is monotone (a law that pushes
+        # back); halving it keeps it there. Beyond a fold it is left whole, so that a
+        # softening law whose solution vanished is reported, not continued on another
+        # branch
+        monotone = sign > 0
         for i in range(n_z):
             z_trial[i] = z[i]
             newton[i] = residual[i]
