@@ -71,6 +71,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from fnsi.feedthrough import own_feedthrough_constraints, own_feedthrough_free
 from fnsi.modal import Coefficient, ModalTable, continuous_poles, nonlinear_coefficients
 from fnsi.stabilisation import reflect_unstable_poles
 from fnsi.statespace import StateSpaceModel
@@ -392,6 +393,7 @@ class _Evaluation:
         self.model = model
         self.points = driving_points
         self.reflect = reflect
+        self.repaired = own_feedthrough_free(model)
 
     def __call__(self, gamma: np.ndarray, noise: np.ndarray, poles: np.ndarray,
                  peaks: np.ndarray | None = None) -> _Point:
@@ -415,13 +417,20 @@ class _Evaluation:
     def _coefficients(self, A: np.ndarray, C: np.ndarray, noise: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
         """Band estimates (s,) and mu_j(omega) (s, N) of the model with B^e, D^e fitted to
-        the moved spectra (nothing to fit for a linear model: B, D leave the modes alone)."""
+        the moved spectra (nothing to fit for a linear model: B, D leave the modes alone),
+        under the nominal fit's constraints: a repaired model's perturbations keep each
+        element's own feed-through at zero (:mod:`fnsi.feedthrough`), so that the spread
+        is that of the reported estimates, not of the unconstrained fit's."""
         dec, sp = self.decomposition, self.decomposition.spectra
         if not self.model.elements:
             return np.zeros(0), np.zeros((0, sp.n_lines))
         q = sp.inputs.shape[2]
         E, Y = sp.inputs + noise[..., :q], sp.outputs + noise[..., q:]
-        B, D = input_matrices(A, C, E, Y, sp.z, noise_covariance=sp.input_noise_covariance)
+        constraints = own_feedthrough_constraints(
+            C, self.model.elements, self.model.output_names,
+            self.model.n_inputs) if self.repaired else None
+        B, D = input_matrices(A, C, E, Y, sp.z, noise_covariance=sp.input_noise_covariance,
+                              constraints=constraints)
         model = dataclasses.replace(self.model, A=A, B=B / dec.input_scale, C=C,
                                     D=D / dec.input_scale)
         power = np.mean(np.abs(E * dec.input_scale) ** 2, axis=0)

@@ -14,10 +14,12 @@ from fnsi.identification import (
     extended_spectra,
     identify,
 )
+from fnsi.modal import continuous_poles, nonlinear_coefficients
 from fnsi.nonlinear import NonlinearElement
 from fnsi.oversampling import finer_model
 from fnsi.structure import StructuralModel
 from fnsi.subspace import decompose, input_matrices
+from fnsi.uncertainty import _Evaluation
 
 OUTPUTS = ("y0", "y1", "y2")
 ELEMENTS = (NonlinearElement("coulomb_friction", "y0", "y1", width=0.01),   # velocity basis
@@ -130,17 +132,24 @@ def test_a_model_whose_friction_step_folds_is_refined_from_its_repair(stiff_fric
     assert any("own nonlinear feed-through held at zero" in w for w in result.warnings)
 
 
-def test_a_repaired_model_keeps_its_feedthrough_free_at_a_finer_rate(stiff_friction):
-    """The finer-rate model of fnsi.oversampling (through which a model with a
-    non-smooth element is validated) keeps each element's own feed-through at zero
-    when the model has none, and a fitted one's free."""
+@pytest.fixture(scope="module")
+def grid_decomposition(stiff_friction):
+    """The order-6 decomposition of the friction record, with its input's name."""
     record, friction = stiff_friction
     settings = check_settings(record.layout, IdentificationSettings(
         band=GRID_BAND, order=6, discard_periods=1, elements=(friction,)))
     spectra, elements, _ = extended_spectra(record, settings)
     decomposition = decompose(spectra, block_rows=settings.block_rows, max_order=6,
                               n_inputs=1, elements=elements)
-    lines = spectra.frequencies
+    return decomposition, spectra.input_names[0]
+
+
+def test_a_repaired_model_keeps_its_feedthrough_free_at_a_finer_rate(grid_decomposition):
+    """The finer-rate model of fnsi.oversampling (through which a model with a
+    non-smooth element is validated) keeps each element's own feed-through at zero
+    when the model has none, and a fitted one's free."""
+    decomposition, _ = grid_decomposition
+    lines = decomposition.spectra.frequencies
     for own in (False, True):
         model = decomposition.model(6, own_feedthrough=own)
         assert own_feedthrough_free(model) is not own
@@ -151,3 +160,29 @@ def test_a_repaired_model_keeps_its_feedthrough_free_at_a_finer_rate(stiff_frict
         # without)
         H, H_finer = (m.frequency_response(lines) for m in (model, finer))
         assert np.abs(H_finer - H).max() < 0.02 * np.abs(H).max()
+
+
+def test_the_error_bars_of_a_repaired_model_are_taken_at_its_own_fit(grid_decomposition):
+    """fnsi.uncertainty differentiates the reported quantities: at zero noise its
+    evaluation refits B^e, D^e as the model was fitted, constrained for the repaired
+    model, and so returns the model's own coefficient, free or repaired."""
+    decomposition, input_name = grid_decomposition
+    spectra = decomposition.spectra
+    points = {input_name: "b"}
+    power = np.mean(np.abs(spectra.inputs * decomposition.input_scale) ** 2, axis=0)
+    gamma = decomposition.observability[:, :6]
+    R, N, q = spectra.inputs.shape
+    no_noise = np.zeros((R, N, q + spectra.outputs.shape[2]))
+    estimates = []
+    for own in (False, True):
+        model = decomposition.model(6, own_feedthrough=own)
+        reported = nonlinear_coefficients(model, spectra.frequencies, points, power)
+        poles = continuous_poles(model.A, model.fs)[0]
+        point = _Evaluation(decomposition, model, points, reflect=False)(
+            gamma, no_noise, poles)
+        # the same least squares on the same spectra: equal to rounding
+        np.testing.assert_allclose(point.estimates, [c.mean_real for c in reported],
+                                   rtol=1e-8)
+        estimates.append(point.estimates[0])
+    # and the two fits differ (else the test could not tell them apart)
+    assert abs(estimates[0] - estimates[1]) > 0.01 * abs(estimates[1])
