@@ -32,8 +32,9 @@ A candidate whose model cannot be simulated is repaired, not dropped
 equation). A candidate is *claimed* by the rule of :mod:`fnsi.claim`: its improvement is
 significant against the period-to-period noise (one-sided z test), each parameter it adds
 lowers the RMS error above the noise floor by 10 %, and its coefficient is
-physically plausible (a stop with negative contact stiffness, or friction or damping that
-feeds energy in, lowers the error for another reason: :func:`implausibility`). Claimed
+physically plausible (a stop with negative contact stiffness, friction or damping that
+feeds energy in, or a coefficient whose imaginary part outweighs its real part, lowers
+the error for another reason: :func:`implausibility`). Claimed
 candidates come first, the simpler winning unless the richer explains clearly more. When
 none is claimed alone, two that each help significantly are validated together, the
 second chosen with the poles held (:func:`claim_pair`: of two missing effects, each of
@@ -800,7 +801,8 @@ def added_parameters(effect: Effect, element: NonlinearElement | None) -> int:
     return 1
 
 
-def implausibility(effect: Effect, element: NonlinearElement | None) -> str | None:
+def implausibility(effect: Effect, element: NonlinearElement | None,
+                   log10_real_imag: float | None = None) -> str | None:
     """Why an identified coefficient contradicts the physics of its effect, or None.
 
     A stop only pushes the parts apart once in contact (contact stiffness mu > 0), dry
@@ -809,12 +811,22 @@ def implausibility(effect: Effect, element: NonlinearElement | None) -> str | No
     nearby location, or a linear error of the revision that the basis happens to
     correct. Cubic and quadratic stiffness take either sign (softening, asymmetry).
 
+    Whatever the law, its coefficient is real: with the right basis functions the
+    imaginary part of mu_j(omega) is much smaller than the real part (paper, Section II
+    after Eq. 18, and Table 5). An estimate whose imaginary part is the larger
+    (log10(|Re| / |Im|) < 0, a phase beyond 45 degrees) means the force acts in
+    quadrature with the basis: a spring's force fitted by a damper's basis, or the
+    reverse, is a quarter period out of phase. Such a fit names the wrong law.
+
     Parameters
     ----------
     effect : Effect
     element : NonlinearElement or None
         The element with its identified coefficients (None or no coefficients: nothing
         to judge).
+    log10_real_imag : float, optional
+        log10(|Re mu| / |Im mu|) of its band estimate (:attr:`fnsi.modal.Coefficient.
+        log10_real_imag`, averaged over its basis functions); None when not identified.
 
     Returns
     -------
@@ -829,12 +841,28 @@ def implausibility(effect: Effect, element: NonlinearElement | None) -> str | No
     'the identified contact stiffness is negative (-5): a stop cannot pull the parts together'
     >>> implausibility(Effect.CLEARANCE, replace(stop, coefficients=(5.0,))) is None
     True
+    >>> damper = NonlinearElement("quadratic_damping", "x1", coefficients=(2.0,))
+    >>> implausibility(Effect.QUADRATIC_DAMPING, damper, log10_real_imag=-2.0)
+    'the identified coefficient is mostly imaginary (|Re|/|Im| = 0.01): the force is out \
+of phase with this law, so another law (a spring for a damper, or the reverse) acts there'
     """
     if element is None or not element.coefficients:
         return None
     mu = element.coefficients[0]
-    if mu > 0:
-        return None
+    if mu <= 0:
+        sign = _sign_concern(effect, mu)
+        if sign is not None:
+            return sign
+    if log10_real_imag is not None and log10_real_imag < 0:
+        return (f"the identified coefficient is mostly imaginary (|Re|/|Im| = "
+                f"{_number(10.0 ** log10_real_imag)}): the force is out of phase with this "
+                f"law, so another law (a spring for a damper, or the reverse) acts there")
+    return None
+
+
+def _sign_concern(effect: Effect, mu: float) -> str | None:
+    """The concern of a coefficient mu <= 0 for an effect that must take energy out or
+    push apart (:func:`implausibility`), None for effects of either sign."""
     sign = f"{'negative' if mu < 0 else 'zero'} ({_number(mu)})"
     if effect is Effect.CLEARANCE:
         return (f"the identified contact stiffness is {sign}: a stop cannot pull the "
@@ -1051,7 +1079,8 @@ def claim_rule(candidates: int) -> str:
             f"{critical_z(candidates):.2g}), when each parameter it adds lowers the RMS "
             f"error above the noise floor by at least {100 * FALL_PER_PARAMETER:.0f} % and "
             f"it removes more squared error than the squared noise floor, and when its "
-            f"coefficient is physically plausible")
+            f"coefficient is physically plausible (of the sign its law allows, and mostly "
+            f"real)")
 
 
 def _summary(candidates: Sequence[Candidate], before: float, floor: float,
@@ -1265,7 +1294,7 @@ def _validate(study: Study, revision: int, proposal: Proposal, judge: _Judge,
     element, log_ratio, flatness = _coefficient_quality(evaluation, proposal.element)
     judge = judge.at_order(study, revision, evaluation.order)
     test = judge.test(evaluation, added_parameters(proposal.effect, element))
-    concern = implausibility(proposal.effect, element)
+    concern = implausibility(proposal.effect, element, log_ratio)
     return Candidate(
         effect=proposal.effect, location=proposal.location, element=element,
         order=evaluation.order, validation_nrmse_percent=after,
@@ -1374,8 +1403,8 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
             continue
         pair = tests.at_order(study, revision, evaluation.order).test(
             evaluation, first.parameters + added_parameters(other.effect, other.element))
-        identified = [_coefficient_quality(evaluation, e)[0] for e in (alone, other.element)]
-        if pair.passed and not any(implausibility(effect, e) for effect, e in
+        identified = [_coefficient_quality(evaluation, e)[:2] for e in (alone, other.element)]
+        if pair.passed and not any(implausibility(effect, e, ratio) for effect, (e, ratio) in
                                    zip((first.effect, other.effect), identified, strict=True)):
             passed.append((pair, first, other))
     if not passed:

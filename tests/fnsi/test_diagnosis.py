@@ -51,7 +51,7 @@ from fnsi.diagnosis import (
     rank_candidates,
 )
 from fnsi.excitation import Excitation, periodic_noise
-from fnsi.identification import IdentificationSettings
+from fnsi.identification import IdentificationSettings, identify
 from fnsi.nonlinear import NonlinearElement
 from fnsi.screening import MotionRecord, ScreeningProblem
 from fnsi.structure import StructuralModel
@@ -560,3 +560,20 @@ def test_nothing_claimed_above_the_floor_says_what_is_left_and_the_rule():
     assert "it makes the model worse (10 % -> 12 %)" in verdict
     assert "stays 33.3 times the noise floor" in verdict
     assert "within the noise" not in verdict
+
+
+def test_a_damper_fitted_to_a_spring_force_is_judged_the_wrong_law():
+    """With the right law the coefficient is real (paper, Section II); a quadratic
+    damper's basis fitted to a cubic spring's force is a quarter period out of phase,
+    so its coefficient is mostly imaginary, and that is a concern whatever its sign."""
+    record = measure(chain(NonlinearElement("polynomial", "x3", exponent=3.0,
+                                            coefficients=(2e8,))), 1)
+    laws = {Effect.CUBIC_STIFFNESS: NonlinearElement("polynomial", "x3", exponent=3.0),
+            Effect.QUADRATIC_DAMPING: NonlinearElement("quadratic_damping", "x3")}
+    # measured log10(|Re| / |Im|): 2.3 for the cubic spring, -1.3 for the damper
+    for effect, law in laws.items():
+        coefficient = identify(record, dataclasses.replace(SETTINGS, elements=(law,))
+                               ).coefficients[0]
+        identified = dataclasses.replace(law, coefficients=(abs(coefficient.mean_real),))
+        concern = implausibility(effect, identified, coefficient.log10_real_imag)
+        assert (concern is None) is (effect is Effect.CUBIC_STIFFNESS), (effect, concern)
