@@ -876,6 +876,49 @@ def _sign_concern(effect: Effect, mu: float) -> str | None:
     return None
 
 
+DISSIPATIVE = frozenset({Effect.COULOMB_FRICTION, Effect.QUADRATIC_DAMPING})
+"""Laws whose force follows the velocity; the others follow the displacement, a quarter
+period apart at each frequency (:func:`quadrature_proposals`)."""
+
+QUADRATURE_TRIALS = 2
+"""Most proposals of the other family validated where a coefficient came out mostly
+imaginary (:func:`quadrature_proposals`)."""
+
+
+def quadrature_proposals(candidates: Sequence[Candidate], proposals: Sequence[Proposal]
+                         ) -> list[Proposal]:
+    """Proposals of the other law family where a validated coefficient is mostly imaginary.
+
+    A coefficient with |Im| > |Re| (:func:`implausibility`) says the force at that location
+    is a quarter period out of phase with the law fitted: a displacement law (spring,
+    clearance) where a velocity law (damper, friction) was fitted, or the reverse. The
+    screening ranks kinds by the residual they remove with the poles held, where the two
+    families can trade places (a cubic spring seen in velocity ranked below a quadratic
+    damper at its location); the phase is the stronger evidence, so the best
+    :data:`QUADRATURE_TRIALS` proposals of the other family at such locations, not yet
+    validated, are validated too.
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+        The validated candidates.
+    proposals : sequence of Proposal
+        Every stage-2 proposal, best first (:func:`compare_kinds` at the compared
+        locations).
+
+    Returns
+    -------
+    list of Proposal
+        Best first.
+    """
+    validated = {(c.effect, c.location) for c in candidates}
+    wanted = {(c.location, c.effect not in DISSIPATIVE) for c in candidates
+              if c.location is not None and c.log10_real_imag is not None
+              and c.log10_real_imag < 0}
+    return [p for p in proposals if (p.location, p.effect in DISSIPATIVE) in wanted
+            and (p.effect, p.location) not in validated][:QUADRATURE_TRIALS]
+
+
 def rank_candidates(candidates: Sequence[Candidate]) -> list[Candidate]:
     """Candidates best first: the convincing ones (claimed by the rule of
     :mod:`fnsi.claim` and physically plausible, :attr:`Candidate.convincing`) before the
@@ -1516,6 +1559,12 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
                    f"validated {names[count]}")
     finally:   # a cancelled diagnosis (report raised) drops the trials not started
         pool.shutdown(wait=True, cancel_futures=True)
+    quadrature = quadrature_proposals(candidates, proposals)
+    if quadrature:
+        report(0.98, "validating the other law where a coefficient came out imaginary")
+        wider = replace(elements_judge, candidates=elements_judge.candidates + len(quadrature))
+        candidates += [_validate(study, index, p, wider, by_location.get(p.location))
+                       for p in quadrature]
     candidates = rank_candidates(candidates)
     if candidates and not candidates[0].convincing:
         report(0.99, "validating the best two effects together")

@@ -48,6 +48,7 @@ from fnsi.diagnosis import (
     distinct_locations,
     implausibility,
     kind_locations,
+    quadrature_proposals,
     rank_candidates,
 )
 from fnsi.excitation import Excitation, periodic_noise
@@ -577,3 +578,38 @@ def test_a_damper_fitted_to_a_spring_force_is_judged_the_wrong_law():
         identified = dataclasses.replace(law, coefficients=(abs(coefficient.mean_real),))
         concern = implausibility(effect, identified, coefficient.log10_real_imag)
         assert (concern is None) is (effect is Effect.CUBIC_STIFFNESS), (effect, concern)
+
+
+def test_the_other_law_is_validated_where_a_coefficient_is_imaginary():
+    here, there = Location("x2", "x3"), Location("x4")
+    damper = NonlinearElement("quadratic_damping", "x2", "x3")
+
+    def proposal(effect, location, reduction):
+        return Proposal(effect, location, damper, reduction)
+
+    def candidate(effect, location, log10_real_imag):
+        return Candidate(effect=effect, location=location, element=damper, order=8,
+                         validation_nrmse_percent=3.0, error_reduction_factor=2.0,
+                         beats_noise_floor=True, screening_reduction=0.5,
+                         log10_real_imag=log10_real_imag, flatness_percent=10.0,
+                         explanation="")
+
+    proposals = [proposal(Effect.QUADRATIC_DAMPING, here, 0.9),
+                 proposal(Effect.COULOMB_FRICTION, here, 0.8),
+                 proposal(Effect.CLEARANCE, here, 0.7),
+                 proposal(Effect.QUADRATIC_DAMPING, there, 0.65),
+                 proposal(Effect.CUBIC_STIFFNESS, there, 0.62),
+                 proposal(Effect.QUADRATIC_STIFFNESS, here, 0.6),
+                 proposal(Effect.CUBIC_STIFFNESS, here, 0.5)]
+    # a damper in quadrature here: the two best displacement laws here not yet validated
+    validated = [candidate(Effect.QUADRATIC_DAMPING, here, -1.3),
+                 candidate(Effect.CLEARANCE, here, 0.4),
+                 candidate(Effect.QUADRATIC_DAMPING, there, 1.5)]
+    chosen = quadrature_proposals(validated, proposals)
+    assert [(p.effect, p.location) for p in chosen] == [
+        (Effect.QUADRATIC_STIFFNESS, here), (Effect.CUBIC_STIFFNESS, here)]
+    # a spring in quadrature there: the velocity laws there; nothing when all are real
+    validated[2] = candidate(Effect.CUBIC_STIFFNESS, there, -0.5)
+    assert [(p.effect, p.location) for p in quadrature_proposals(validated[1:], proposals)
+            ] == [(Effect.QUADRATIC_DAMPING, there)]
+    assert quadrature_proposals(validated[1:2], proposals) == []
