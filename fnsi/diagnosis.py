@@ -26,6 +26,10 @@ candidate missing effects in three stages, from cheap to expensive:
    :func:`candidate_order`), simulation with the validation input and the
    validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
    frequency, Section II.E). A missing linear mode (order + 2) is always validated.
+   Where a coefficient comes out mostly imaginary, the force there is a quarter period
+   out of phase with the law fitted, and the best laws of the other family at that
+   location (springs for a damper, dampers for a spring) are validated too
+   (:func:`quadrature_proposals`).
 
 A candidate whose model cannot be simulated is repaired, not dropped
 (:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
@@ -34,11 +38,11 @@ significant against the period-to-period noise (one-sided z test), each paramete
 lowers the RMS error above the noise floor by 10 %, and its coefficient is
 physically plausible (a stop with negative contact stiffness, friction or damping that
 feeds energy in, or a coefficient whose imaginary part outweighs its real part, lowers
-the error for another reason: :func:`implausibility`). Claimed
-candidates come first, the simpler winning unless the richer explains clearly more. When
-none is claimed alone, two that each help significantly are validated together, the
-second chosen with the poles held (:func:`claim_pair`: of two missing effects, each of
-which the revision's linear part absorbed in part, either may be too little alone).
+the error for another reason: :func:`implausibility`). Claimed candidates come first,
+the simpler winning unless the richer explains clearly more. When none is claimed alone,
+two that each help significantly are validated together, the second chosen with the
+poles held (:func:`claim_pair`: of two missing effects, each of which the revision's
+linear part absorbed in part, either may be too little alone).
 When FNSI's revision, at an explicit order, misses the floor by the study's refinement
 threshold, element candidates are judged as the study would keep them, refined by their
 simulation error (in :data:`TRIAL_STEPS` steps), against the revision refined the same
