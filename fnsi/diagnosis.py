@@ -26,10 +26,10 @@ candidate missing effects in three stages, from cheap to expensive:
    :func:`candidate_order`), simulation with the validation input and the
    validation NRMSE, plus the coefficient quality (log10(Re/Im), flatness over
    frequency, Section II.E). A missing linear mode (order + 2) is always validated.
-   Where a coefficient comes out mostly imaginary, the force there is a quarter period
-   out of phase with the law fitted, and the best laws of the other family at that
-   location (springs for a damper, dampers for a spring) are validated too
-   (:func:`quadrature_proposals`).
+   When none is claimed and a coefficient came out mostly imaginary, the force there is
+   a quarter period out of phase with the law fitted, and the best laws of the other
+   family at that location (springs for a damper, dampers for a spring) are validated
+   too (:func:`quadrature_proposals`).
 
 A candidate whose model cannot be simulated is repaired, not dropped
 (:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
@@ -1563,13 +1563,17 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
                    f"validated {names[count]}")
     finally:   # a cancelled diagnosis (report raised) drops the trials not started
         pool.shutdown(wait=True, cancel_futures=True)
-    quadrature = quadrature_proposals(candidates, proposals)
+    candidates = rank_candidates(candidates)
+    # the phase's evidence is followed when no candidate is claimed: a claim stands
+    quadrature = (quadrature_proposals(candidates, proposals)
+                  if candidates and not candidates[0].convincing else [])
     if quadrature:
         report(0.98, "validating the other law where a coefficient came out imaginary")
         wider = replace(elements_judge, candidates=elements_judge.candidates + len(quadrature))
-        candidates += [_validate(study, index, p, wider, by_location.get(p.location))
-                       for p in quadrature]
-    candidates = rank_candidates(candidates)
+        with ThreadPoolExecutor(max_workers=settings.workers) as extra:
+            candidates = rank_candidates([*candidates, *extra.map(
+                lambda p: _validate(study, index, p, wider, by_location.get(p.location)),
+                quadrature)])
     if candidates and not candidates[0].convincing:
         report(0.99, "validating the best two effects together")
         candidates = rank_candidates(claim_pair(study, index, candidates, elements_judge,
