@@ -10,7 +10,12 @@ from scipy import optimize, signal
 
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.nonlinear import NonlinearElement
-from fnsi.simulation import SimulationDivergedError, simulate, simulate_periodic
+from fnsi.simulation import (
+    NoSteadyStateError,
+    SimulationDivergedError,
+    simulate,
+    simulate_periodic,
+)
 from fnsi.statespace import StateSpaceModel
 from fnsi.subspace import SubspaceDecomposition, decompose
 
@@ -22,9 +27,9 @@ CUBIC = NonlinearElement("polynomial", "q", exponent=3.0)
 
 
 def _sdof(nonlinear_column: float, d_input: float = 0.0, d_basis: float = 0.0,
-          elements: tuple = (CUBIC,)) -> StateSpaceModel:
+          elements: tuple = (CUBIC,), zeta: float = ZETA) -> StateSpaceModel:
     """Zero-order-hold discretisation of q'' + 2 zeta w q' + w^2 q + mu g = u (Eq. 3-5)."""
-    Ac = np.array([[0.0, 1.0], [-OMEGA**2, -2 * ZETA * OMEGA]])
+    Ac = np.array([[0.0, 1.0], [-OMEGA**2, -2 * zeta * OMEGA]])
     Be = np.array([[0.0, 0.0], [1.0, -nonlinear_column]])   # B_c^nl = -mu M^-1 b (Eq. 4)
     A, B, C, _, _ = signal.cont2discrete((Ac, Be, np.array([[1.0, 0.0]]), np.zeros((1, 2))),
                                          1 / FS)
@@ -225,6 +230,20 @@ def test_corrections_stop_on_a_periodic_solution_the_dynamics_leave(force):
         simulate_periodic(model, u)
     with pytest.raises(SimulationDivergedError):
         simulate_periodic(model, u, corrections=30)
+
+
+@pytest.mark.parametrize(("zeta", "settles"), [(0.008, False), (0.012, True)])
+def test_a_response_too_slow_to_settle_is_given_up_early(force, zeta, settles):
+    # a lightly damped Duffing marched from rest rings down by exp(-2 pi zeta f T) a
+    # period (5 Hz, T = 0.5 s): at zeta = 0.012 the change falls from about 0.3 to the
+    # tolerance 1e-6 in 75 periods, within the 100 allowed; at 0.008 it would need ~150,
+    # and its decay over the first periods tells so (all 100 ran before, ending at 7e-6)
+    model = _sdof(K3, zeta=zeta)
+    if settles:
+        assert simulate_periodic(model, 2.0 * force[:500], max_periods=100).periods_run == 75
+        return
+    with pytest.raises(NoSteadyStateError, match=r"in 100 periods \(after 12,"):
+        simulate_periodic(model, 2.0 * force[:500], max_periods=100)
 
 
 def test_divergence_is_detected_and_explained(force):
