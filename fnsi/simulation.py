@@ -568,8 +568,9 @@ before, so that a change alternating from period to period is not read as a deca
 SETTLING_MARGIN = 1e3
 """Factor by which the change, extrapolated at its measured rate to the last period
 allowed, must miss the tolerance before a simulation is declared unsettled early. On the
-order searches of five 5-DOF chains' diagnoses (171 periodic simulations that settled,
-44 that did not within 30 periods), a margin of 100 would have stopped one simulation
+diagnoses of four 5-DOF chains (``benchmarks/diagnosis_chain.py``, seeds 0-3: 504
+periodic simulations that settled, 44 that did not within the order searches' 30
+periods, 421 that diverged), a margin of 100 would have stopped one simulation
 that settled after 25 periods; 1000 stopped none and cut 74 % of the periods spent on
 the ones that never settle."""
 
