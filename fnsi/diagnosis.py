@@ -10,10 +10,8 @@ candidate missing effects in three stages, from cheap to expensive:
    (linear spring, x^2, x^3, friction-like and quadratic-damping velocity functions), then
    the best with a nonparametric cubic spline (automatic knots, Eq. 19-22) plus the
    velocity functions acting through one force (rank-one B^e), which also gives the
-   shape of the force. With a driving point the force acts through the direction that
-   reciprocity gives for the location (:meth:`fnsi.screening.ScreeningProblem.direction`),
-   one unknown per function. The reduction of the noise-weighted residual ranks the
-   locations; one set of line-wise products serves them all.
+   shape of the force. The reduction of the noise-weighted residual ranks the locations;
+   one set of line-wise products serves them all.
 2. **Compare kinds** at the best locations, and at every connection among the DOFs of
    the locations the screening cannot tell apart (:func:`kind_locations`), once per
    place (locations whose relative motions agree are one, :func:`distinct_locations`),
@@ -494,7 +492,7 @@ def _proxy_cost(problem: ScreeningProblem, location: Location) -> float:
                 NonlinearElement("polynomial", dof, ref, exponent=3.0),
                 *_velocity_elements(location, v)]
     columns = [problem.linear_spectrum(dof, ref), *map(problem.basis_spectra, elements)]
-    return problem.fit(np.concatenate(columns, axis=2), (dof, ref))[0]
+    return problem.fit(np.concatenate(columns, axis=2))[0]
 
 
 def _fit_with_linear(problem: ScreeningProblem, element: NonlinearElement) -> float:
@@ -502,11 +500,7 @@ def _fit_with_linear(problem: ScreeningProblem, element: NonlinearElement) -> fl
 
     Every candidate carries the linear spring, so that none is credited for merely
     correcting the linear stiffness the starting model absorbed there (its best linear
-    approximation): only the nonlinear part competes. The columns of B^e are free, not
-    directed as in the screening: at a known location they absorb the errors of the held
-    poles and residues, which would otherwise bias the searched parameters (directed, an
-    asymmetric clearance's gaps came out at 0.0016 m on both sides against 0.002 and
-    0.001 m, a friction's width 40 times too small).
+    approximation): only the nonlinear part competes.
     """
     return problem.with_spring(element.dof, element.ref).fit(problem.basis_spectra(element))[0]
 
@@ -543,7 +537,7 @@ def screen_locations(problem: ScreeningProblem, locations: Sequence[Location],
         if progress is not None:
             progress(0.7 + 0.3 * rank / refine, f"spline at {location.label}")
         spline, columns = _screening_basis(problem, location, intervals)
-        cost, mu = problem.fit_rank_one(columns, (location.dof, location.ref))
+        cost, mu = problem.fit_rank_one(columns)
         grid = np.linspace(*span, 201)
         shape = spline.basis(grid) @ mu[1: 1 + spline.n_basis]
         # Sign: a restoring force on average (positive work over the range).
@@ -1411,16 +1405,16 @@ def _complement(problem: ScreeningProblem, element: NonlinearElement,
     """The proposal at another location that, added to ``element`` with the poles held,
     explains the most residual (greedy forward selection; each with its linear spring,
     as in :func:`_fit_with_linear`)."""
-    def force(e: NonlinearElement) -> tuple[np.ndarray, tuple[str, str | None]]:
-        columns = [problem.linear_spectrum(e.dof, e.ref), problem.basis_spectra(e)]
-        return np.concatenate(columns, axis=2), (e.dof, e.ref)
+    def columns(e: NonlinearElement) -> list[np.ndarray]:
+        return [problem.linear_spectrum(e.dof, e.ref), problem.basis_spectra(e)]
 
     where = frozenset((element.dof, element.ref))
-    own = force(element)
+    own = columns(element)
     others = [p for p in proposals if frozenset((p.location.dof, p.location.ref)) != where]
     if not others:
         return None
-    return min(others, key=lambda p: problem.fit_forces([own, force(p.element)])[0])
+    return min(others, key=lambda p: problem.fit(np.concatenate(
+        own + columns(p.element), axis=2))[0])
 
 
 def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], judge: _Judge,
@@ -1504,8 +1498,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     start = time.perf_counter()
     report(0.0, "preparing the screening")
     problem = ScreeningProblem(study.identified_estimation, _screening_model(study, base),
-                               study.settings.band, study.settings.discard_periods,
-                               dict(study.settings.driving_points) or None)
+                               study.settings.band, study.settings.discard_periods)
     locations = candidate_locations(base.model.output_names, study.connections)
     scores = screen_locations(problem, locations, settings.screening_intervals,
                               progress=lambda f, m: report(0.3 * f, m))

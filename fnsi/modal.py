@@ -271,58 +271,21 @@ def _least_squares_ratio(h: np.ndarray, he: np.ndarray) -> np.ndarray:
     return -np.sum(h.conj() * he, axis=1) / np.sum(np.abs(h) ** 2, axis=1)
 
 
-def _reciprocal_modes(model: StateSpaceModel, input_col: int, point: int, target: int
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Modal form of a force at output ``target``, by reciprocity (Section IV.C).
-
-    The residue of mode r is c_r phi phi^T, and the measured column of the force at
-    driving point ``point`` gives c_r phi_r[point] phi, hence the force at ``target``
-    enters mode r with scale beta_r psi_r[target] / psi_r[point], psi = C V and
-    beta = (V^-1 B)[:, input]. Modes without motion at the driving point carry no
-    information on their scaling and are left out (scale 0).
-
-    Returns
-    -------
-    lam : ndarray, shape (n,), complex
-        Discrete-time poles.
-    V : ndarray, shape (n, n), complex
-        Eigenvectors of A.
-    psi : ndarray, shape (l, n), complex
-        C V.
-    scale : ndarray, shape (n,), complex
-        The force's modal participation.
-    """
-    lam, V = np.linalg.eig(model.A)
-    psi = model.C @ V
-    participation = np.linalg.solve(V, model.B)[:, input_col]
-    at_point = psi[point]
-    usable = np.abs(at_point) > 1e-8 * np.max(np.abs(at_point))
-    scale = np.zeros_like(at_point)
-    scale[usable] = participation[usable] * psi[target, usable] / at_point[usable]
-    return lam, V, psi, scale
-
-
-def reciprocal_input(model: StateSpaceModel, input_col: int, point: int,
-                     target: int) -> np.ndarray:
-    """Input vector b (n,) of a unit force at output ``target``, in the model's states.
-
-    From the input ``input_col`` acting at output ``point`` (its driving point) by
-    reciprocity (:func:`_reciprocal_modes`): C (z I - A)^-1 b is the FRF column of that
-    force (the measured input's own column when ``target`` is ``point``), in the output
-    unit per the input's unit. Real up to rounding (modes in conjugate pairs).
-    """
-    _, V, _, scale = _reciprocal_modes(model, input_col, point, target)
-    return (V @ scale).real
-
-
 def _synthesised_column(model: StateSpaceModel, frequencies: np.ndarray, input_col: int,
                         point: int, target: int) -> np.ndarray:
     """FRF column of a force at output ``target`` from the modes, shape (N, l).
 
-    Column ``target`` = sum_r psi_r scale_r / (z - lambda_r) with the reciprocal modal
-    scales of :func:`_reciprocal_modes`; D (feedthrough) is left out.
+    By reciprocity the residue of mode r is c_r phi phi^T, and the measured column of the
+    force at driving point ``point`` gives c_r phi_r[point] phi (Section IV.C), hence
+    column ``target`` = sum_r psi_r beta_r psi_r[target] / psi_r[point] / (z - lambda_r),
+    with psi = C V and beta = (V^-1 B)[:, input]. Modes without motion at the driving point
+    carry no information on their scaling and are left out; so is D (feedthrough).
     """
-    lam, _, psi, scale = _reciprocal_modes(model, input_col, point, target)
+    lam, psi, participation = model.eigen_decomposition()
+    at_point = psi[point]
+    usable = np.abs(at_point) > 1e-8 * np.max(np.abs(at_point))
+    scale = np.zeros_like(at_point)
+    scale[usable] = participation[usable, input_col] * psi[target, usable] / at_point[usable]
     z = np.exp(2j * np.pi * frequencies / model.fs)
     return (psi * scale) @ (1.0 / (z[None, :] - lam[:, None]))  # (l, N)
 

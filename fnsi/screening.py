@@ -18,17 +18,6 @@ without them, ranks locations and kinds before any expensive identification. The
 (inputs and the revision's own bases) is eliminated once (Schur complement), so a
 candidate costs the products of its own columns only.
 
-A force acts at its location only: with a driving point (an input measured at the point
-it acts), reciprocity gives the input vector of a unit force at any output from the
-identified modes (Section IV.C, :func:`fnsi.modal.reciprocal_input`), and a candidate's
-columns of B^e are that direction times one coefficient each. Each candidate then has as
-many unknowns as basis functions, not n times as many: with n free unknowns a column fits
-most of any residual (FNSI's screening model often holds 30-60 states), and locations are
-told apart by conditioning, not physics. Free columns also absorb the errors of the held
-poles and residues (identified without the effect), which is what a parameter search at a
-known location needs (:func:`fnsi.diagnosis._fit_with_linear`). Without a driving point
-the columns are free.
-
 Basis functions are evaluated on measured outputs, whose noise would be "explained" by
 fitting them to the same periods (errors in variables): they are evaluated on the first
 half of the kept periods and fitted to the average of the other half.
@@ -40,14 +29,12 @@ averaged period ``(realisations, period_length, channels)``.
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 
 from fnsi.measurement import Measurement
-from fnsi.modal import default_driving_points, reciprocal_input
 from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import displacement_velocity, kept_record, without_quiet_low_lines
 from fnsi.statespace import StateSpaceModel
@@ -115,24 +102,17 @@ class ScreeningProblem:
         Analysed frequency band [Hz] (the identification band).
     discard_periods : int
         Transient periods dropped at the start of each realisation.
-    driving_points : mapping of str to str, optional
-        Input name -> output measured at the point and direction of that force; the
-        first input with one directs the candidates' forces (:meth:`direction`).
-        Default: :func:`fnsi.modal.default_driving_points`.
 
     Notes
     -----
-    Unknowns are the real columns b_a (n,) of B^e for every extended input e_a (inputs,
-    existing bases, candidate bases): the normal equations read
-    sum_b Re(sum_k conj(e_a) e_b M_k) b_b = Re(sum_k conj(e_a) W_k^H S Y_k). A directed
-    candidate's columns are its force direction d times one real unknown each
-    (b = T theta, T block diagonal), its blocks projected by T. D^e is left out: it
-    carries no dynamics and would multiply the unknowns by l / n.
+    Unknowns are the real columns b_a (n,) of B^e for every extended input e_a
+    (inputs, existing bases, candidate bases): the normal equations read
+    sum_b Re(sum_k conj(e_a) e_b M_k) b_b = Re(sum_k conj(e_a) W_k^H S Y_k). D^e is left
+    out: it carries no dynamics and would multiply the unknowns by l / n.
     """
 
     def __init__(self, measurement: Measurement, model: StateSpaceModel,
-                 band: tuple[float, float], discard_periods: int,
-                 driving_points: Mapping[str, str] | None = None) -> None:
+                 band: tuple[float, float], discard_periods: int) -> None:
         data = measurement.select(inputs=model.input_names, outputs=model.output_names)
         kept = data.periods - discard_periods
         periods = without_quiet_low_lines(kept_record(data.y, data.periods, discard_periods),
@@ -192,48 +172,18 @@ class ScreeningProblem:
         self.order = n
         self._linear: dict[tuple[str, str | None], np.ndarray] = {}
         self._springs: dict[tuple[str, str | None], ScreeningProblem] = {}
-        self._model = model
-        if driving_points is None:
-            driving_points = default_driving_points(model.input_names, model.output_names)
-        self._driving = next(((model.input_names.index(u), model.output_names.index(y))
-                              for u, y in driving_points.items()
-                              if u in model.input_names and y in model.output_names), None)
-        self._unit_forces: dict[str, np.ndarray] = {}
-        # Base columns: the inputs and the revision's own bases, free as FNSI fits them.
+        # Base columns: the inputs and the revision's own bases.
         base = [u_mean[:, self.lines]]
         base += [self.basis_spectra(element) for element in model.elements]
         self._set_base(np.concatenate(base, axis=2))
 
     def _set_base(self, base: np.ndarray) -> None:
-        """Take ``base`` (R, N, p) as the regressors every candidate is fitted with, each
-        with its own free column of B^e."""
+        """Take ``base`` (R, N, p) as the regressors every candidate is fitted with."""
         self._base = base
         self._base_rhs = self._rhs(base)
         self._base_inverse = _pseudo_inverse(self._gram(base, base))
         self._base_solution = self._base_inverse @ self._base_rhs
         self.base_cost = float(self.output_energy - self._base_solution @ self._base_rhs)
-
-    def direction(self, dof: str, ref: str | None) -> np.ndarray | None:
-        """Input vector (n,) of a unit force acting on ``dof`` against ``ref`` (None:
-        ground), by reciprocity from the driving point; None without one."""
-        if self._driving is None:
-            return None
-        direction = self._unit_force(dof)
-        return direction if ref is None else direction - self._unit_force(ref)
-
-    def _unit_force(self, output: str) -> np.ndarray:
-        """Input vector of a unit force at ``output`` (computed once per output)."""
-        if output not in self._unit_forces:
-            column, point = self._driving
-            self._unit_forces[output] = reciprocal_input(
-                self._model, column, point, self.motion.output_names.index(output))
-        return self._unit_forces[output]
-
-    def _map(self, directions: Sequence[np.ndarray | None]) -> np.ndarray:
-        """T (p n, q): the regressors' unknowns to their stacked columns of B^e."""
-        n = self.order
-        return scipy.linalg.block_diag(*(np.eye(n) if d is None else d[:, None]
-                                         for d in directions))
 
     def with_spring(self, dof: str, ref: str | None) -> ScreeningProblem:
         """The problem with a linear spring at ``dof - ref`` added to the base (once per
@@ -298,18 +248,8 @@ class ScreeningProblem:
         return float(self.base_cost - theta @ d), theta
 
     # -- candidates --------------------------------------------------------------------------
-    def fit(self, columns: np.ndarray, at: tuple[str, str | None] | None = None
-            ) -> tuple[float, np.ndarray]:
-        """Fit candidate basis spectra ``columns`` (R, N, s) acting at location ``at``.
-
-        Parameters
-        ----------
-        columns : ndarray, shape (R, N, s)
-            Basis spectra of the candidate.
-        at : (str, str or None), optional
-            Location (dof, ref) of the force: with a driving point every column acts
-            through its direction (:meth:`direction`), one unknown each; otherwise (or
-            ``at`` None) each column has its own free column of B^e.
+    def fit(self, columns: np.ndarray) -> tuple[float, np.ndarray]:
+        """Fit candidate basis spectra ``columns`` (R, N, s), each with its own B^e column.
 
         Returns
         -------
@@ -318,61 +258,41 @@ class ScreeningProblem:
         b_candidate : ndarray, shape (n, s)
             The candidate's columns of B^e.
         """
-        return self.fit_forces([(columns, at)])
-
-    def fit_forces(self, groups: Sequence[tuple[np.ndarray, tuple[str, str | None] | None]]
-                   ) -> tuple[float, np.ndarray]:
-        """Fit several candidate forces together: ``groups`` of (columns, at) as in
-        :meth:`fit`; the columns of B^e returned side by side, (n, sum of s)."""
-        columns = np.concatenate([c for c, _ in groups], axis=2)
-        directions = [None if at is None else self.direction(*at)
-                      for c, at in groups for _ in range(c.shape[2])]
-        t = self._map(directions)
-        cross = self._gram(self._base, columns) @ t
-        own = t.T @ self._gram(columns, columns) @ t
-        cost, theta = self._added(cross, own, t.T @ self._rhs(columns))
+        cross = self._gram(self._base, columns)
+        cost, theta = self._added(cross, self._gram(columns, columns), self._rhs(columns))
         if not CANCELLATION * self.base_cost < cost <= self.base_cost:
-            cost = self._residual_cost(columns, cross, theta, t)
-        return cost, (t @ theta).reshape(-1, self.order).T
+            cost = self._residual_cost(columns, cross, theta)
+        return cost, theta.reshape(-1, self.order).T
 
-    def _residual_cost(self, columns: np.ndarray, cross: np.ndarray, theta: np.ndarray,
-                       t: np.ndarray) -> float:
+    def _residual_cost(self, columns: np.ndarray, cross: np.ndarray,
+                       theta: np.ndarray) -> float:
         """The weighted residual energy of a fit computed from its residual, not as the
         energy less the explained part (which cancels when the normal equations are
         ill-conditioned, e.g. a revision of high order fitted on few lines: costs below
-        zero, reductions of 20 times the residual). ``cross`` is the fit's base-candidate
-        block, ``theta`` its unknowns and ``t`` their map to columns of B^e."""
+        zero, reductions of 20 times the residual)."""
         base = self._base_solution - self._base_inverse @ cross @ theta
         n = self.order
         force = (np.einsum("rka,an->rkn", self._base, base.reshape(-1, n))
-                 + np.einsum("rka,an->rkn", columns, (t @ theta).reshape(-1, n)))
+                 + np.einsum("rka,an->rkn", columns, theta.reshape(-1, n)))
         residual = self._y - np.einsum("kln,rkn->rkl", self._w, force)
         return float(np.sum(np.abs(residual) ** 2))
 
-    def fit_rank_one(self, columns: np.ndarray, at: tuple[str, str | None] | None = None,
-                     iterations: int = 6) -> tuple[float, np.ndarray]:
+    def fit_rank_one(self, columns: np.ndarray, iterations: int = 6
+                     ) -> tuple[float, np.ndarray]:
         """Fit basis functions acting through one force: B_c = b0 mu^T (Eq. 2, 4).
 
         All basis functions of one location move the structure through the same force
-        direction b0, so their B^e columns are proportional. With a driving point b0 is
-        the location's direction (:meth:`direction`) and the fit is linear in mu.
-        Otherwise alternating least squares on b0 (n) and mu (s), started from the
-        leading right singular vector of the unconstrained fit (``iterations=0``: that
-        projection only).
+        direction b = e_dof - e_ref, so their B^e columns are proportional. Alternating
+        least squares on b0 (n) and mu (s), started from the leading right singular vector
+        of the unconstrained fit (``iterations=0``: that projection only).
 
         Returns
         -------
         cost : float
             Weighted residual energy.
         mu : ndarray, shape (s,)
-            Combination of the basis functions: the force per unit of each basis
-            function with a driving point (the sign of Eq. 17 aside), else scale and sign
-            arbitrary.
+            Combination of the basis functions (scale and sign arbitrary).
         """
-        direction = None if at is None else self.direction(*at)
-        if direction is not None:
-            cost, b = self.fit(columns, at)
-            return cost, b.T @ direction / (direction @ direction)
         cost, b = self.fit(columns)
         if columns.shape[2] == 1:
             return cost, np.ones(1)

@@ -14,7 +14,6 @@ from fnsi.modal import (
     missing_driving_point,
     modal_table,
     nonlinear_coefficients,
-    reciprocal_input,
 )
 from fnsi.nonlinear import NonlinearElement
 from fnsi.statespace import StateSpaceModel
@@ -93,18 +92,6 @@ def test_coefficients_are_recovered_exactly(structure, inputs, element, method):
     # exact model: only rounding (and, for the synthesis, the D-free residue sum) differ
     np.testing.assert_allclose(mu.values, 2.0e4, rtol=1e-7)
     assert mu.log10_real_imag > 6 and mu.variation < 1e-7
-
-
-@pytest.mark.parametrize("target", ["a", "b", "c"])
-def test_a_force_anywhere_follows_from_the_driving_point_by_reciprocity(structure, target):
-    measured = exact_model(structure, ["c"], ())
-    b = reciprocal_input(measured, 0, point=2, target="abc".index(target))
-    synthesised = dataclasses.replace(measured, B=b[:, None], D=np.zeros((3, 1)),
-                                      input_names=(target,))
-    truth = exact_model(structure, [target], ())
-    # exact poles and residues: the columns agree to rounding
-    np.testing.assert_allclose(synthesised.frequency_response(FREQUENCIES),
-                               truth.frequency_response(FREQUENCIES), rtol=1e-8, atol=0)
 
 
 def test_coefficients_refused_without_driving_point(structure):
