@@ -364,9 +364,10 @@ def _output_limit(model: StateSpaceModel, peak: np.ndarray, factor: float) -> np
 
 MODAL_CONDITION = 1e6
 """Largest condition number of the eigenvector basis in which a model is simulated in
-modal coordinates (:func:`modal_coordinates`): rounding then grows by at most this
-factor, to some 1e-10 of the response, far below any measurement's noise and the
-steady-state tolerance (1e-6). Beyond it (close or defective poles) the state stays the
+modal coordinates (:func:`modal_coordinates`): the change of coordinates multiplies
+rounding by at most this factor, to about 1e6 x 1e-16 = 1e-10 of the response (an
+estimate, not a measurement), far below any measurement's noise and the steady-state
+tolerance (1e-6). Beyond it (close or defective poles) the state stays the
 model's."""
 
 

@@ -89,7 +89,7 @@ def test_linear_model_equals_scipy_dlsim():
     u = rng.normal(size=(2000, 2))
     _, expected, _ = signal.dlsim((A, B, C, D, 1 / FS), u)
     # same recursion, different code and coordinates (modal, condition number 30): the
-    # rounding of 2000 steps of a lightly damped system, 1e-12 of the peak in double
+    # rounding of 2000 steps of a lightly damped system (measured 1.2e-12 of the peak)
     np.testing.assert_allclose(simulate(model, u), expected, rtol=0, atol=1e-11 * np.abs(
         expected).max())
 
