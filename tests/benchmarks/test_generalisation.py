@@ -94,6 +94,21 @@ def test_cubic_hardening_response_has_odd_harmonics_only():
     assert Y[[2, 4, 6, 8, 10]].max() < 1e-6 * Y[3]
 
 
+def test_stiff_element_is_refused_within_its_work_budget():
+    # a stop 1e4 times stiffer than the structure (K ~ 1e3 N/m, fastest mode 9.0 Hz)
+    # engaging at 0: an explicit step must resolve its ~500 Hz contact, 56 times faster
+    # than the fastest linear mode, so the budget of 1000 evaluations per linear cycle
+    # stops it in the first period instead of running on
+    fs, samples = 64.0, 64
+    lines = np.array([3])
+    spectrum = synthesis.multisine(np.random.default_rng(2), 1, samples, lines, 1)
+    stiff = replace(STRUCTURE2, elements=(Element("clearance", 0, GROUND, 1e7,
+                                                  gaps=(np.inf, 0.0)),))
+    with pytest.raises(ValueError, match="1000 evaluations per cycle"):
+        periodic_steady_state(stiff, spectrum, samples, lines, fs, np.array([0]),
+                              np.array([1]), "displacement")
+
+
 def test_clearance_and_stop_forces():
     # dead zone of gaps (1, 2): zero inside, slope k outside; an infinite gap: a one-sided
     # stop; exact arithmetic, so exact comparison
