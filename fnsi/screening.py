@@ -165,8 +165,12 @@ class ScreeningProblem:
         w = np.swapaxes(w, 1, 2)                                               # (N, l, n)
         self._w, self._y = w, y
         self._gram_lines = np.einsum("kli,klj->kij", w.conj(), w).reshape(z.size, n * n)
-        self._gram_real = np.ascontiguousarray(self._gram_lines.real)
-        self._gram_imag = np.ascontiguousarray(self._gram_lines.imag)
+        # M_k is Hermitian (its (j, i) entry the exact conjugate of its (i, j) entry):
+        # its upper triangle holds it, half the memory each Gram block streams through
+        self._upper = np.triu_indices(n)
+        upper = self._gram_lines.reshape(z.size, n, n)[:, *self._upper]
+        self._gram_real = np.ascontiguousarray(upper.real)
+        self._gram_imag = np.ascontiguousarray(upper.imag)
         self._projected = np.einsum("kli,rkl->rki", w.conj(), y)              # (R, N, n)
         self.output_energy = float(np.sum(np.abs(y) ** 2))
         self.order = n
@@ -226,8 +230,13 @@ class ScreeningProblem:
         products = np.einsum("rka,rkb->abk", ea.conj(), eb).reshape(pa * pb, -1)
         # einsum's own loops, not BLAS: these products are many and small, and threaded
         # BLAS spends more time synchronising than computing on them.
-        gram = (np.einsum("ak,kx->ax", products.real, self._gram_real)
-                - np.einsum("ak,kx->ax", products.imag, self._gram_imag))
+        real = np.einsum("ak,kx->ax", products.real, self._gram_real)
+        imag = np.einsum("ak,kx->ax", products.imag, self._gram_imag)
+        # entry (i, j) is Re p M_ij = real - imag; (j, i), with M_ji = conj(M_ij),
+        # is real + imag
+        gram = np.empty((pa * pb, n, n))
+        gram[:, self._upper[1], self._upper[0]] = real + imag
+        gram[:, *self._upper] = real - imag
         return gram.reshape(pa, pb, n, n).transpose(0, 2, 1, 3).reshape(pa * n, pb * n)
 
     def _rhs(self, e: np.ndarray) -> np.ndarray:
