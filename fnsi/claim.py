@@ -197,7 +197,14 @@ class ClaimTest:
         if self.after >= self.before:
             return f"it makes the model worse ({self.before:.3g} % -> {self.after:.3g} %)"
         reasons = []
-        if not self.significant:
+        if not self.significant and math.isfinite(self.z) and self.z <= 0:
+            # the NRMSE weighs lines by the response's power, the test by the noise's
+            reasons.append(
+                f"its pooled error falls ({self.before:.3g} % -> {self.after:.3g} %) but "
+                f"weighted by the noise of each line and channel it fits worse (z = "
+                f"{self.z:.2g}): it gains where the noise is large and loses where the "
+                f"measurement is most precise")
+        elif not self.significant:
             reasons.append(
                 f"its improvement is not significant against the period-to-period noise "
                 f"(z = {self.z:.2g} < {self.z_critical:.2g})" if math.isfinite(self.z) else

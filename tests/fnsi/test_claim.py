@@ -71,3 +71,16 @@ def test_a_claim_must_remove_more_than_the_noise():
     assert near.significant and not near.worth_parameters and not near.passed
     assert "squared noise floor" in near.words()
     assert claim_test(1.0, 0.2, 0.128, 1, z=10.0, candidates=5).passed
+
+
+def test_a_fall_of_the_pooled_error_with_a_worse_weighted_fit_says_both():
+    # seed 22 case 11 of the hidden benchmark: the pooled NRMSE fell 7.94 -> 6.70 % yet
+    # z = -31, a worse fit on the lines where the noise is smallest; "not significant"
+    # alone read as a contradiction of the two numbers it printed
+    test = claim_test(7.94, 6.70, 0.237, 1, z=-31.0, candidates=7)
+    assert not test.passed
+    words = test.words()
+    assert "fits worse (z = -31)" in words and "7.94 % -> 6.7 %" in words
+    assert "not significant" not in words
+    # a positive z below the critical value is the noise's doing, and says so
+    assert "not significant" in claim_test(7.94, 6.70, 0.237, 1, z=2.0, candidates=7).words()
