@@ -62,6 +62,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # this checkout's fnsi and benchmarks, not an installed copy
 
 from benchmarks.generalisation import hidden_scoring  # noqa: E402
+from benchmarks.generalisation.blind import read_index  # noqa: E402
 from benchmarks.generalisation.cases import generate  # noqa: E402
 from benchmarks.generalisation.hidden import generate_hidden  # noqa: E402
 from benchmarks.generalisation.oracle import oracle_report, run_oracle  # noqa: E402
@@ -159,6 +160,16 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(summary(scores)))
 
 
+def _print_drawn(case: str, truth: dict) -> None:
+    """Progress of the hidden part's generation: what was drawn, or why not."""
+    if "skipped" in truth:
+        print(f"{case}: skipped ({truth['skipped']})", flush=True)
+        return
+    plan = truth["plan"]
+    print(f"{case}: {', '.join(plan['kinds']) or 'no effect'}, linear error "
+          f"{plan['linear_error_pct']:.3g} %", flush=True)
+
+
 def hidden(args: argparse.Namespace) -> None:
     """The hidden-effect part's phases (module docstring)."""
     seed = 21 if args.seed is None else args.seed
@@ -167,13 +178,10 @@ def hidden(args: argparse.Namespace) -> None:
     print(f"benchmark directory {root}", flush=True)
     if args.phase in ("all", "generate"):
         start = time.perf_counter()
-        generate_hidden(root, seed, count, noise_free=args.noise_free, jobs=args.jobs,
-                        progress=lambda case, truth: print(
-                            f"{case}: {', '.join(truth['plan']['kinds']) or 'no effect'}, "
-                            f"linear error {truth['plan']['linear_error_pct']:.3g} %",
-                            flush=True))
-        print(f"generated {count} cases (seed {seed}) in {time.perf_counter() - start:.0f} s",
-              flush=True)
+        drawn = generate_hidden(root, seed, count, noise_free=args.noise_free,
+                                jobs=args.jobs, progress=_print_drawn)
+        print(f"generated {len(drawn)} of {count} cases (seed {seed}) in "
+              f"{time.perf_counter() - start:.0f} s", flush=True)
     if args.phase in ("all", "run"):
         start = time.perf_counter()
         run(root, lambda case, a: print(
@@ -187,7 +195,8 @@ def hidden(args: argparse.Namespace) -> None:
         scratch = args.smoke or args.noise_free or args.phase != "all"
         target = args.results or (root / "generalisation_hidden.md" if scratch
                                   else HIDDEN_RESULTS)
-        target.write_text(hidden_scoring.report(scores, seed, HIDDEN_HEADER))
+        target.write_text(hidden_scoring.report(scores, seed, HIDDEN_HEADER,
+                                                read_index(root).get("skipped")))
         print(f"table written to {target}")
         print(json.dumps(hidden_scoring.summary(scores)))
     if args.phase == "oracle":

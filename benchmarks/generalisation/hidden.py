@@ -352,9 +352,14 @@ def _element_json(element: Element) -> dict:
 
 
 def _draw_one(args: tuple[Path, str, np.random.SeedSequence, bool]) -> tuple[str, dict]:
-    """Draw and write one case (a process-pool task); returns its id and truth."""
+    """Draw and write one case (a process-pool task); returns its id and truth, or
+    ``{"skipped": reason}`` for a case whose effects could not be sized into the band
+    (no file is written for it)."""
     directory, case, seed, noise_free = args
-    data, truth = draw_hidden_case(seed, noise_free=noise_free)
+    try:
+        data, truth = draw_hidden_case(seed, noise_free=noise_free)
+    except RuntimeError as error:
+        return case, {"skipped": str(error)}
     np.savez(directory / f"{case}.npz", **data)
     return case, truth
 
@@ -379,20 +384,27 @@ def generate_hidden(root, seed: int, count: int, *, noise_free: bool = False,
     Returns
     -------
     list of str
-        Case ids.
+        Ids of the cases drawn. A case that cannot be drawn (:func:`draw_hidden_case`
+        raises RuntimeError after its redraws) is listed in the index's ``"skipped"``
+        with the reason, and the others are kept: one such case used to end the whole
+        generation, whose truth and index are written only at its end.
     """
     directory = fresh_cases_dir(root)
     ids = [f"case{k:04d}" for k in range(count)]
     tasks = [(directory, case, child, noise_free)
              for case, child in zip(ids, np.random.SeedSequence(seed).spawn(count),
                                     strict=True)]
-    truths = {}
+    truths, skipped = {}, {}
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for case, truth in pool.map(_draw_one, tasks):
-            truths[case] = truth
+            if "skipped" in truth:
+                skipped[case] = truth["skipped"]
+            else:
+                truths[case] = truth
             if progress is not None:
                 progress(case, truth)
+    drawn = [case for case in ids if case in truths]
     write_json(truth_path(root), {"seed": seed, "part": "hidden", "cases": truths})
     write_json(directory / "index.json", {"seed": seed, "count": count, "part": "hidden",
-                                          "cases": ids})
-    return ids
+                                          "cases": drawn, "skipped": skipped})
+    return drawn

@@ -326,12 +326,18 @@ def _row(label: str, group: list[HiddenScore]) -> str:
             f"{np.median(times) if times else math.nan:.1f} |")
 
 
-def report(scores: list[HiddenScore], seed: int, header: str) -> str:
-    """The results table in Markdown: totals, breakdowns, failure categories, failures."""
+def report(scores: list[HiddenScore], seed: int, header: str,
+           skipped: dict[str, str] | None = None) -> str:
+    """The results table in Markdown: totals, breakdowns, failure categories, failures;
+    ``skipped``: cases the generator could not draw and why (the index's "skipped")."""
     head = summary(scores)
     lines = [header, "", f"Seed {seed}, {head['cases']} cases. Headline: `{json.dumps(head)}` "
              "(targets: top-1 >= 95 %, floor reached >= 90 %, false alarms <= 2 %, pairs "
              ">= 90 %, nothing found above the floor: 0).", ""]
+    if skipped:
+        lines += [f"Not drawn ({len(skipped)}, effects that could not be sized into the "
+                  "band, not scored): " + "; ".join(f"{c}: {r}" for c, r in
+                                                     sorted(skipped.items())) + ".", ""]
     columns = ("| {} | cases | top-1 kind and location | floor reached | false alarm | pair "
                "found | nothing found above floor | refused | median diagnosis s |\n"
                "|---|---|---|---|---|---|---|---|---|")

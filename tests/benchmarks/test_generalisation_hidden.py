@@ -109,6 +109,24 @@ def test_truth_is_sealed_until_every_answer_is_recorded(tmp_path):
         truth_path(tmp_path).read_text()
 
 
+def _draw_or_refuse(seed: np.random.SeedSequence, *, noise_free: bool = False):
+    """Stands for :func:`hidden.draw_hidden_case`: case 1 cannot be sized."""
+    if seed.spawn_key[-1] == 1:
+        raise RuntimeError("no effect could be sized into the band")
+    return {"u": np.zeros(4)}, {"plan": {"kinds": []}, "elements": []}
+
+
+def test_a_case_that_cannot_be_drawn_is_skipped_and_the_others_kept(tmp_path, monkeypatch):
+    # the pool forks: its processes see the patched module
+    monkeypatch.setattr(hidden, "draw_hidden_case", _draw_or_refuse)
+    drawn = hidden.generate_hidden(tmp_path, 5, 3, jobs=1)
+    index = json.loads((tmp_path / "cases" / "index.json").read_text())
+    assert drawn == index["cases"] == ["case0000", "case0002"]
+    assert index["skipped"] == {"case0001": "no effect could be sized into the band"}
+    assert sorted(json.loads(truth_path(tmp_path).read_text())["cases"]) == drawn
+    assert not (tmp_path / "cases" / "case0001.npz").exists()
+
+
 def test_claims_read_kind_location_and_stop_side_in_the_truths_orientation():
     # a stop between x2 and x0 on the positive side of x0 - x2 is the negative side of
     # x2 - x0; a stop to ground keeps its side; a two-sided clearance has no side
