@@ -9,6 +9,7 @@ from fnsi.measurement import Measurement
 from fnsi.spectra import (
     band_lines,
     integrate_periodic,
+    lowest_distortion_frequency,
     measured_excitation,
     noise_covariance,
     output_spectra,
@@ -181,3 +182,22 @@ def test_noise_under_the_band_is_dropped_before_integration_and_distortion_kept(
     np.testing.assert_allclose(quiet[:, f >= low], spectrum(y, 1)[:, f >= low], atol=1e-9)
     for quantity, p in (("displacement", periods), ("acceleration", 1)):
         assert without_quiet_low_lines(y, p, fs, quantity, low) is y
+
+
+def test_the_fit_under_the_band_starts_at_the_lowest_distorted_line():
+    """A displacement record's noise is no larger under the band than in it: the fit may
+    start at the first line. An integrated record's fit starts at the lowest line that
+    stands out of the noise in some channel, or at the band when none does."""
+    rng = np.random.default_rng(5)
+    fs, n, periods, low = 64.0, 256, 4, 4.0            # lines every 0.25 Hz
+    t = np.arange(n * periods) / fs
+    signal = np.cos(2 * np.pi * 10.0 * t)
+    noise = 0.05 * rng.standard_normal((2, t.size))
+    quiet = np.stack([signal + noise[0], signal + noise[1]], axis=1)[None]
+    distorted = quiet + np.stack([0.2 * np.cos(2 * np.pi * 1.5 * t),
+                                  0.2 * np.cos(2 * np.pi * 0.75 * t)], axis=1)[None]
+    assert lowest_distortion_frequency(quiet, periods, fs, "displacement", low) == 0.25
+    assert lowest_distortion_frequency(distorted, periods, fs, "acceleration", low) == 0.75
+    assert lowest_distortion_frequency(quiet, periods, fs, "velocity", low) == low
+    # one period: no noise estimate to tell distortion from noise
+    assert lowest_distortion_frequency(distorted[:, :n], 1, fs, "acceleration", low) == low
