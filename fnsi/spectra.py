@@ -346,7 +346,7 @@ def without_quiet_low_lines(y: np.ndarray, periods: int, fs: float, quantity: st
     r, samples, c = y.shape
     n = samples // periods
     spectra = np.fft.rfft(y.reshape(r, periods, n, c), axis=2)
-    below, signal = _low_signal(spectra, fs, low)
+    below, signal = _low_signal(spectra, n, fs, low)
     quiet = below[None, :, None] & ~signal
     if not quiet.any():
         return y
@@ -354,7 +354,7 @@ def without_quiet_low_lines(y: np.ndarray, periods: int, fs: float, quantity: st
     return np.fft.irfft(spectra, n=n, axis=2).reshape(r, samples, c)
 
 
-def _low_signal(spectra: np.ndarray, fs: float, low: float, channels: int = 1,
+def _low_signal(spectra: np.ndarray, n: int, fs: float, low: float, channels: int = 1,
                 ) -> tuple[np.ndarray, np.ndarray]:
     """The two tests of :func:`without_quiet_low_lines` on per-period spectra, the
     per-line one for :data:`FALSE_LOW_LINES` expected noise-only lines in ``channels``
@@ -364,6 +364,8 @@ def _low_signal(spectra: np.ndarray, fs: float, low: float, channels: int = 1,
     ----------
     spectra : ndarray, shape (R, periods, N // 2 + 1, l), complex
         DFT of each period of each output.
+    n : int
+        Samples per period.
     fs, low : float
         Sampling rate and lower edge of the band [Hz].
 
@@ -375,7 +377,7 @@ def _low_signal(spectra: np.ndarray, fs: float, low: float, channels: int = 1,
         Lines of a distorted channel standing out of its noise.
     """
     ratio = np.abs(spectra.mean(axis=1)) ** 2 / pooled_noise_variance(spectra)[None]
-    f = np.fft.rfftfreq(2 * (spectra.shape[2] - 1), 1.0 / fs)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
     below = (f > 0) & (f < low)      # the mean, which integration drops, stays
     lines = max(int(below.sum()), 1)
     distorted = ratio[:, below].sum(axis=1) > gamma.ppf(1 - LOW_DISTORTION_FALSE_ALARM, lines)
@@ -425,8 +427,8 @@ def lowest_distortion_frequency(y: np.ndarray, periods: int, fs: float, quantity
     if periods < 2:
         return low
     r, _, c = y.shape
-    below, signal = _low_signal(np.fft.rfft(y.reshape(r, periods, n, c), axis=2), fs, low,
-                                channels=r * c)
+    below, signal = _low_signal(np.fft.rfft(y.reshape(r, periods, n, c), axis=2), n, fs,
+                                low, channels=r * c)
     found = np.flatnonzero(below & signal.any(axis=(0, 2)))
     return float(found[0] * fs / n) if found.size else low
 
