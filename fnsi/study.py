@@ -19,9 +19,8 @@ the modal rule of an identification does not count (a linear revision takes it t
 that an element is credited only for what no order of the linear model explains). A
 revision with elements is also fitted on the lines up to the band's harmonics and down
 to the lowest distorted line under it (``harmonic_band``), those its errors cover, where
-the forces drive these modes. A
-revision keeps the order its base asked for (``"auto"`` is chosen again with the new
-elements) unless it sets its own.
+the forces drive these modes. A revision keeps the order its base asked for (``"auto"``
+is chosen again with the new elements) unless it sets its own.
 
 The error history shows revision by revision whether the model improves; the diagnosis
 (:mod:`fnsi.diagnosis`) proposes what to add next.
@@ -550,8 +549,8 @@ class Study:
                            refine=self.settings.refine if refine is None else refine)
         report = progress or (lambda fraction, message: None)
         # reflection changes nothing in a stable model, so it costs nothing to ask for
-        explicit = harmonic_band and order != "auto"
-        result = identify(self.estimation, replace(settings, harmonic_band=explicit),
+        wide_at_order = harmonic_band and order != "auto"
+        result = identify(self.estimation, replace(settings, harmonic_band=wide_at_order),
                           lambda f, m: report(0.45 * f, m), reflect_unstable=True,
                           refine_iterations=refine_iterations, order_near=order_near,
                           modal_order=not trial)
