@@ -1256,15 +1256,12 @@ class _Judge:
         evaluation = study.evaluate(elements, order, trial=True,
                                     refine=(base.refined and explicit) or None,
                                     order_near=base.identified_order)
-        if not math.isfinite(evaluation.nrmse_percent):
-            return evaluation
-        if self.refine_trials and not base.refined and explicit:
-            return study.better_refined(evaluation, trial=True,
-                                        iterations=TRIAL_STEPS)
-        if (not explicit and elements and not study.settings.refine
-                and study.misses_floor(evaluation.nrmse_percent)):
-            return study.better_refined(evaluation, trial=True,
-                                        iterations=TRIAL_STEPS)
+        error = evaluation.nrmse_percent
+        as_reference = self.refine_trials and not base.refined and explicit
+        as_study = (not explicit and bool(elements) and not study.settings.refine
+                    and study.misses_floor(error))
+        if math.isfinite(error) and (as_reference or as_study):
+            return study.better_refined(evaluation, trial=True, iterations=TRIAL_STEPS)
         return evaluation
 
     def test(self, evaluation: Evaluation, parameters: int) -> ClaimTest:

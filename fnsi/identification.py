@@ -604,16 +604,18 @@ def _basis_series(elements: tuple[NonlinearElement, ...], data: Measurement,
     return tuple(resolved), np.concatenate(series, axis=2), ranges
 
 
-def analysis_band(settings: IdentificationSettings, fs: float, low: float,
-                  ) -> tuple[float, float]:
+def analysis_band(settings: IdentificationSettings, data: Measurement, y: np.ndarray,
+                  periods: int) -> tuple[float, float]:
     """The band FNSI fits [Hz]: ``settings.band``, or with ``harmonic_band`` and elements
     the band widened up to ``ERROR_BAND_FACTOR`` times its upper edge (at most fs / 2),
-    where the elements' harmonics drive the outputs, and down to ``low``, where their
-    distortion at difference frequencies does
-    (:func:`fnsi.spectra.lowest_distortion_frequency`)."""
+    where the elements' harmonics drive the outputs, and down to where their distortion
+    at difference frequencies does (:func:`fnsi.spectra.lowest_distortion_frequency` of
+    ``y``, the ``periods`` kept periods of ``data``'s outputs)."""
     if not (settings.harmonic_band and settings.elements):
         return settings.band
-    return min(low, settings.band[0]), min(ERROR_BAND_FACTOR * settings.band[1], fs / 2)
+    low = lowest_distortion_frequency(y, periods, data.fs, data.quantity, settings.band[0])
+    return min(low, settings.band[0]), min(ERROR_BAND_FACTOR * settings.band[1],
+                                           data.fs / 2)
 
 
 def extended_spectra(data: Measurement, settings: IdentificationSettings,
@@ -653,8 +655,7 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
                                                                  settings.band[1])
     elements, g, ranges = _basis_series(settings.elements, data, xb, vb, oversampling)
     E = np.concatenate([u, g], axis=2)
-    band = analysis_band(settings, data.fs, lowest_distortion_frequency(
-        y, periods, data.fs, data.quantity, settings.band[0]))
+    band = analysis_band(settings, data, y, periods)
     freq, spectrum = transform(E, periods, data.fs, band, settings.line_set)
     _, Y = transform(x, periods, data.fs, band, settings.line_set)
     output_cov = input_cov = factor = None

@@ -406,20 +406,13 @@ def lowest_distortion_frequency(y: np.ndarray, periods: int, fs: float, quantity
 
     Parameters
     ----------
-    y : ndarray, shape (R, periods * N, l)
-        Kept steady-state periods of the measured outputs.
-    periods : int
-        Periods in ``y``.
-    fs : float
-        Sampling rate [Hz].
-    quantity : {"displacement", "velocity", "acceleration"}
-    low : float
-        Lower edge of the band [Hz].
+    y, periods, fs, quantity, low
+        As in :func:`without_quiet_low_lines`.
 
     Returns
     -------
     float
-        The first line's frequency, the lowest distorted line's, or ``low``.
+        The first line's frequency, the lowest distorted line's, or ``low`` [Hz].
     """
     n = y.shape[1] // periods
     if INTEGRATIONS[quantity] == 0:
