@@ -50,6 +50,7 @@ from fnsi.diagnosis import (
     kind_locations,
     quadrature_proposals,
     rank_candidates,
+    validated_proposals,
 )
 from fnsi.excitation import Excitation, periodic_noise
 from fnsi.identification import IdentificationSettings, identify
@@ -464,6 +465,30 @@ def test_locations_moving_alike_are_compared_once():
               _scored("p2", "w", 0.9), _scored("b", "p1", 0.8), _scored("b", None, 0.8)]
     kept = [s.location for s in distinct_locations(problem, scores)]
     assert kept == [Location("w", "p1"), Location("w", "b"), Location("b", "p1")]
+
+def test_a_blind_screening_has_every_kind_at_the_best_locations_validated():
+    """Proposals whose ranking explains most of what reaching the floor takes are
+    validated best first; when the best explains less than a fifth of it (here 1 % of a
+    validation error 10 times the floor, which needs 99 %), every kind at the
+    best-screened locations is, the order being no evidence."""
+    def proposal(effect: Effect, dof: str, reduction: float) -> Proposal:
+        return Proposal(effect, Location(dof), NonlinearElement("quadratic_damping", dof),
+                        reduction)
+
+    top = [_scored("a", None, 0.01), _scored("b", None, 0.008)]
+    kinds = (Effect.CUBIC_STIFFNESS, Effect.QUADRATIC_STIFFNESS, Effect.QUADRATIC_DAMPING)
+    proposals = sorted((proposal(e, d, r * k) for d, r in (("a", 0.01), ("b", 0.008),
+                                                           ("c", 0.009))
+                        for k, e in enumerate(kinds, 1)), key=lambda p: -p.reduction)
+    blind = validated_proposals(proposals, top, 2, before=10.0, floor=1.0)
+    assert [p.location.dof for p in blind] == [p.location.dof for p in proposals
+                                               if p.location.dof in "ab"]
+    assert len(blind) == 6
+    informative = [dataclasses.replace(p, reduction=30 * p.reduction) for p in proposals]
+    assert validated_proposals(informative, top, 2, 10.0, 1.0) == informative[:2]
+    # near the floor little is left to explain: 1 % of it is then a followed ranking
+    assert validated_proposals(proposals, top, 2, before=1.02, floor=1.0) == proposals[:2]
+
 
 def test_claim_rule():
     # significant (z above the critical value) and worth its one parameter
