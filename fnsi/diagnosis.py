@@ -799,7 +799,8 @@ fifth of it, the residual is dominated by what the held poles cannot express (a
 linear part that absorbed the effect, a mode the fit lacks), and the ranking among the
 proposals is no evidence at all: on the generalisation benchmark's seed-22 cases 16
 and 38 the true law and place ranked 14th and 15th of 15 with 1 % explained, and
-validated at 1.09 and 2.45 % where the four best-screened reached 8.5 and 7.2 %."""
+validated at 1.09 and 2.45 % (floors 0.85 and 1.36 %), the next best candidates at 8.5
+and 7.2 %."""
 
 
 def validated_proposals(proposals: Sequence[Proposal], top: Sequence[LocationScore],
