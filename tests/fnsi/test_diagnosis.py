@@ -452,6 +452,16 @@ def test_kinds_are_compared_at_every_connection_among_near_tied_dofs():
 
 
 
+def test_kinds_are_compared_where_either_screening_puts_a_location_first():
+    """The spline (one force column) and the first score (a column per law) rank
+    locations differently; the kinds are compared at the best of both."""
+    scores = [dataclasses.replace(_scored(dof, None, spline), proxy_reduction=proxy)
+              for dof, spline, proxy in (("a", 0.5, 0.6), ("b", 0.4, 0.5), ("c", 0.3, 0.9),
+                                         ("d", 0.2, 0.1))]
+    assert [s.location.dof for s in kind_locations(scores, top=1)] == ["a", "c"]
+    assert [s.location.dof for s in kind_locations(scores, top=2)] == ["a", "b", "c"]
+
+
 def test_locations_moving_alike_are_compared_once():
     """A DOF against points that move 0.3 % of it (or the ground) is one place for an
     element, kept at its best-screened location; against a partner that moves half as
