@@ -80,6 +80,7 @@ from fnsi.claim import (
     Unexplained,
     claim_test,
     critical_z,
+    excess,
     improvement_z,
     penalised_excess,
     required_fraction,
@@ -570,15 +571,14 @@ MAX_KIND_LOCATIONS = 30
 def kind_locations(scores: Sequence[LocationScore], top: int) -> list[LocationScore]:
     """Locations whose kinds stage 2 compares, in screening order.
 
-    The best ``top``, the best ``top`` by the cheap first score (each law with its own
-    B^e column, :func:`_proxy_cost`; the rank-one spline of a location's refined score
-    shares one column among the linear spring and the laws, and where the two disagree
-    neither is the better guide: on the generalisation benchmark's seed-22 cases 15 and
-    37 the true place of a damper and a quadratic spring ranked first by the first
-    score, 10th and 6th by the spline), then every screened location that joins two
+    The best ``top``; the best ``top`` by the cheap first score (each law with its own
+    B^e column, :func:`_proxy_cost`), since the rank-one spline of a refined score
+    shares one column among the linear spring and the laws and, where the two disagree,
+    neither is the better guide (on the generalisation benchmark's seed-22 cases 15 and
+    37 the true place of a damper and of a quadratic spring ranked first by the first
+    score, 10th and 6th by the spline); then every screened location that joins two
     DOFs (or a DOF and the ground) of the locations scoring within :data:`NEAR_TIE` of
-    the best: the
-    connections the near-ties implicate. The kind-specific fits tell them apart where
+    the best: the connections the near-ties implicate. The kind-specific fits tell them apart where
     the screening's generic functions cannot (the 39-output SmallSat stop: its
     clearance with the gap searched explains 96.93 %, the best tie 96.80 %). At most
     :data:`MAX_KIND_LOCATIONS`.
@@ -822,10 +822,9 @@ def validated_proposals(proposals: Sequence[Proposal], top: Sequence[LocationSco
                         count: int, before: float, floor: float) -> list[Proposal]:
     """The element proposals stage 3 identifies and simulates, best-screened first.
 
-    The best ``count`` proposals; when the screening is blind (the best explains less
-    than :data:`BLIND_SCREENING` of the fraction 1 - (floor / before)^2 of the
-    validation error's energy that lies above the noise), every kind at the ``top``
-    best-screened locations instead, since their order carries no information.
+    The best ``count`` proposals; when the screening is blind (:func:`blind_screening`),
+    every kind at the ``top`` best-screened locations instead, since their order carries
+    no information.
 
     Parameters
     ----------
@@ -838,12 +837,19 @@ def validated_proposals(proposals: Sequence[Proposal], top: Sequence[LocationSco
     before, floor : float
         The revision's validation NRMSE and the noise floor [%].
     """
-    needed = 1.0 - (floor / before) ** 2 if before > 0 and math.isfinite(floor) else 1.0
-    best = proposals[0].reduction if proposals else 0.0
-    if best >= BLIND_SCREENING * needed:
+    if not blind_screening(proposals, before, floor):
         return list(proposals[:count])
     places = {score.location for score in top}
     return [p for p in proposals if p.location in places] or list(proposals[:count])
+
+
+def blind_screening(proposals: Sequence[Proposal], before: float, floor: float) -> bool:
+    """Whether the best proposal explains less than :data:`BLIND_SCREENING` of the
+    fraction of the revision's validation error energy that lies above the noise floor
+    (``before`` and ``floor`` [%]; all of it when the revision could not be simulated)."""
+    needed = excess(before, floor) / before**2 if 0.0 < before < math.inf else 1.0
+    best = proposals[0].reduction if proposals else 0.0
+    return best < BLIND_SCREENING * needed
 
 
 def added_parameters(effect: Effect, element: NonlinearElement | None) -> int:
@@ -1586,7 +1592,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
                                  settings.validated_candidates, before, floor)
     steps = len(chosen) + int(settings.include_missing_mode) + settings.curve_locations
     curves, notes = [], []
-    if len(chosen) > settings.validated_candidates:
+    if blind_screening(proposals, before, floor):
         notes.append(f"with the revision's poles held no proposal explains more than "
                      f"{100 * proposals[0].reduction:.2g} % of the estimation residual: "
                      f"the screening's ranking was not followed, every kind at the "

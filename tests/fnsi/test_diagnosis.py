@@ -476,6 +476,7 @@ def test_locations_moving_alike_are_compared_once():
     kept = [s.location for s in distinct_locations(problem, scores)]
     assert kept == [Location("w", "p1"), Location("w", "b"), Location("b", "p1")]
 
+
 def test_a_blind_screening_has_every_kind_at_the_best_locations_validated():
     """Proposals whose ranking explains most of what reaching the floor takes are
     validated best first; when the best explains less than a fifth of it (here 1 % of a
