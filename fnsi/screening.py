@@ -162,7 +162,8 @@ class ScreeningProblem:
         wc = (model.C * self.weights[:, None]).T
         w = np.linalg.solve(np.swapaxes(shifted, 1, 2), np.broadcast_to(wc, (z.size, n,
                                                                              wc.shape[1])))
-        w = np.swapaxes(w, 1, 2)                                               # (N, l, n)
+        w = _whitened(np.swapaxes(w, 1, 2))                                    # (N, l, r)
+        n = w.shape[2]
         self._w, self._y = w, y
         self._gram_lines = np.einsum("kli,klj->kij", w.conj(), w).reshape(z.size, n * n)
         # M_k is Hermitian (its (j, i) entry the exact conjugate of its (i, j) entry):
@@ -329,6 +330,35 @@ class ScreeningProblem:
     def reduction(self, cost: float) -> float:
         """Fraction of the base residual a candidate explains, in [0, 1]."""
         return min(max(0.0, (self.base_cost - cost) / self.base_cost), 1.0)
+
+
+STATE_RANK = 1e-8
+"""Smallest singular value, relative to the largest, of a state direction the band's
+lines can tell apart (:func:`_whitened`)."""
+
+
+def _whitened(w: np.ndarray) -> np.ndarray:
+    """``W_k`` (N, l, n) in state coordinates the band's lines see orthonormally,
+    ``W_k T`` (N, l, r) with ``r <= n``.
+
+    The unknown columns b of B^e are real and act through every line at once, so the
+    real map b -> (W_k b)_k, stacked over lines, real and imaginary parts, decides how
+    well they are determined. In FNSI's state basis its columns are far from
+    orthogonal and, for a model with many more states than the band has modes, nearly
+    collinear: the states beyond the band's modes look alike on its lines. The normal
+    equations square that conditioning, and on the generalisation benchmark's seed-22
+    case 25 (34 states, 4 outputs, 50 lines) their costs were wrong by more than the
+    residual (an added column that raised the cost 45-fold, costs below zero), so the
+    ranking of locations was noise. With T = V_r diag(1/s_r) from the stacked map's
+    singular value decomposition, the kept directions have unit gain over the band and
+    those below :data:`STATE_RANK` of the largest, which no fit of double precision
+    resolves, are dropped: B^e's fits are unchanged up to them (b = T beta).
+    """
+    lines, outputs, n = w.shape
+    stacked = np.concatenate([w.real, w.imag]).reshape(2 * lines * outputs, n)
+    _, values, vt = np.linalg.svd(stacked, full_matrices=False)
+    keep = values > STATE_RANK * values[0]
+    return w @ (vt[keep].T / values[keep])
 
 
 def _solve_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
