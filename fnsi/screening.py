@@ -12,9 +12,11 @@ problem, and all of them share the same line-wise products
 
     M_k = W_k^H W_k,  W_k = S C (z_k I - A)^{-1},
 
-where S weights each output channel by the inverse of its noise level. The reduction of
-the weighted residual when a candidate's columns are added, relative to the same fit
-without them, ranks locations and kinds before any expensive identification. The base
+where S weights each output channel by the inverse of its noise level, in state
+coordinates the band's lines see orthonormally (:func:`_whitened`: the normal equations
+square the conditioning of FNSI's own basis). The reduction of the weighted residual
+when a candidate's columns are added, relative to the same fit without them, ranks
+locations and kinds before any expensive identification. The base
 (inputs and the revision's own bases) is eliminated once (Schur complement), so a
 candidate costs the products of its own columns only.
 
@@ -105,8 +107,9 @@ class ScreeningProblem:
 
     Notes
     -----
-    Unknowns are the real columns b_a (n,) of B^e for every extended input e_a
-    (inputs, existing bases, candidate bases): the normal equations read
+    Unknowns are the real columns b_a (r,) of B^e, in the r <= n whitened state
+    coordinates (:func:`_whitened`, ``order``), for every extended input e_a (inputs,
+    existing bases, candidate bases): the normal equations read
     sum_b Re(sum_k conj(e_a) e_b M_k) b_b = Re(sum_k conj(e_a) W_k^H S Y_k). D^e is left
     out: it carries no dynamics and would multiply the unknowns by l / n.
     """
@@ -265,8 +268,8 @@ class ScreeningProblem:
         -------
         cost : float
             Weighted residual energy with the candidate (compare with ``base_cost``).
-        b_candidate : ndarray, shape (n, s)
-            The candidate's columns of B^e.
+        b_candidate : ndarray, shape (order, s)
+            The candidate's columns of B^e, in the whitened state coordinates.
         """
         cross = self._gram(self._base, columns)
         cost, theta = self._added(cross, self._gram(columns, columns), self._rhs(columns))
@@ -293,7 +296,7 @@ class ScreeningProblem:
 
         All basis functions of one location move the structure through the same force
         direction b = e_dof - e_ref, so their B^e columns are proportional. Alternating
-        least squares on b0 (n) and mu (s), started from the leading right singular vector
+        least squares on b0 (``order``) and mu (s), started from the leading right singular vector
         of the unconstrained fit (``iterations=0``: that projection only).
 
         Returns
