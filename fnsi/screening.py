@@ -16,9 +16,9 @@ where S weights each output channel by the inverse of its noise level, in state
 coordinates the band's lines see orthonormally (:func:`_whitened`: the normal equations
 square the conditioning of FNSI's own basis). The reduction of the weighted residual
 when a candidate's columns are added, relative to the same fit without them, ranks
-locations and kinds before any expensive identification. The base
-(inputs and the revision's own bases) is eliminated once (Schur complement), so a
-candidate costs the products of its own columns only.
+locations and kinds before any expensive identification. The base (inputs and the
+revision's own bases) is eliminated once (Schur complement), so a candidate costs the
+products of its own columns only.
 
 Basis functions are evaluated on measured outputs, whose noise would be "explained" by
 fitting them to the same periods (errors in variables): they are evaluated on the first
@@ -296,8 +296,9 @@ class ScreeningProblem:
 
         All basis functions of one location move the structure through the same force
         direction b = e_dof - e_ref, so their B^e columns are proportional. Alternating
-        least squares on b0 (``order``) and mu (s), started from the leading right singular vector
-        of the unconstrained fit (``iterations=0``: that projection only).
+        least squares on b0 (``order``) and mu (s), started from the leading right
+        singular vector of the unconstrained fit (``iterations=0``: that projection
+        only).
 
         Returns
         -------
