@@ -562,7 +562,7 @@ NEAR_TIE = 0.98
 """Screening scores at or above this fraction of the best are ties: with strongly
 correlated channels the screening finds the DOFs a missing force involves but not the
 connection between them (SmallSat single, 39 outputs: a stop from NC2w_Z to any point
-that barely moves explains 95.5 %, the true NC2w_Z-NC2b_Z stop ranks 68th)."""
+that barely moves explains 95.5 %, the true NC2w_Z-NC2b_Z stop ranks 68th-72nd)."""
 
 MAX_KIND_LOCATIONS = 30
 """Most locations whose kinds are compared (about 0.3 s each at 39 outputs)."""
