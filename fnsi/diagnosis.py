@@ -578,10 +578,10 @@ def kind_locations(scores: Sequence[LocationScore], top: int) -> list[LocationSc
     37 the true place of a damper and of a quadratic spring ranked first by the first
     score, 10th and 6th by the spline); then every screened location that joins two
     DOFs (or a DOF and the ground) of the locations scoring within :data:`NEAR_TIE` of
-    the best: the connections the near-ties implicate. The kind-specific fits tell them apart where
-    the screening's generic functions cannot (the 39-output SmallSat stop: its
-    clearance with the gap searched explains 96.93 %, the best tie 96.80 %). At most
-    :data:`MAX_KIND_LOCATIONS`.
+    the best: the connections the near-ties implicate. The kind-specific fits tell them
+    apart where the screening's generic functions cannot (the 39-output SmallSat stop:
+    its clearance with the gap searched explains 96.93 %, the best tie 96.80 %). At
+    most :data:`MAX_KIND_LOCATIONS`.
     """
     best = scores[0].reduction if scores else 0.0
     ties = [s for s in scores if best > 0.0 and s.reduction >= NEAR_TIE * best]

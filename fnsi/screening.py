@@ -166,7 +166,7 @@ class ScreeningProblem:
         w = np.linalg.solve(np.swapaxes(shifted, 1, 2), np.broadcast_to(wc, (z.size, n,
                                                                              wc.shape[1])))
         w = _whitened(np.swapaxes(w, 1, 2))                                    # (N, l, r)
-        n = w.shape[2]
+        n = w.shape[2]   # the unknowns of a column of B^e from here on: r whitened states
         self._w, self._y = w, y
         self._gram_lines = np.einsum("kli,klj->kij", w.conj(), w).reshape(z.size, n * n)
         # M_k is Hermitian (its (j, i) entry the exact conjugate of its (i, j) entry):
