@@ -13,7 +13,7 @@ problem, and all of them share the same line-wise products
     M_k = W_k^H W_k,  W_k = S C (z_k I - A)^{-1},
 
 where S weights each output channel by the inverse of its noise level, in state
-coordinates the band's lines see orthonormally (:func:`_whitened`: the normal equations
+coordinates the band's lines see orthonormally (:mod:`fnsi.whitening`: the normal equations
 square the conditioning of FNSI's own basis). The reduction of the weighted residual
 when a candidate's columns are added, relative to the same fit without them, ranks
 locations and kinds before any expensive identification. The base (inputs and the
@@ -40,6 +40,7 @@ from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import displacement_velocity, kept_record, without_quiet_low_lines
 from fnsi.statespace import StateSpaceModel
+from fnsi.whitening import whitening
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,7 @@ class ScreeningProblem:
     Notes
     -----
     Unknowns are the real columns b_a (r,) of B^e, in the r <= n whitened state
-    coordinates (:func:`_whitened`, ``order``), for every extended input e_a (inputs,
+    coordinates (:mod:`fnsi.whitening`, ``order``), for every extended input e_a (inputs,
     existing bases, candidate bases): the normal equations read
     sum_b Re(sum_k conj(e_a) e_b M_k) b_b = Re(sum_k conj(e_a) W_k^H S Y_k). D^e is left
     out: it carries no dynamics and would multiply the unknowns by l / n.
@@ -165,7 +166,8 @@ class ScreeningProblem:
         wc = (model.C * self.weights[:, None]).T
         w = np.linalg.solve(np.swapaxes(shifted, 1, 2), np.broadcast_to(wc, (z.size, n,
                                                                              wc.shape[1])))
-        w = _whitened(np.swapaxes(w, 1, 2))                                    # (N, l, r)
+        w = np.swapaxes(w, 1, 2)
+        w = w @ whitening(w)                                                   # (N, l, r)
         n = w.shape[2]   # the unknowns of a column of B^e from here on: r whitened states
         self._w, self._y = w, y
         self._gram_lines = np.einsum("kli,klj->kij", w.conj(), w).reshape(z.size, n * n)
@@ -334,35 +336,6 @@ class ScreeningProblem:
     def reduction(self, cost: float) -> float:
         """Fraction of the base residual a candidate explains, in [0, 1]."""
         return min(max(0.0, (self.base_cost - cost) / self.base_cost), 1.0)
-
-
-STATE_RANK = 1e-8
-"""Smallest singular value, relative to the largest, of a state direction the band's
-lines can tell apart (:func:`_whitened`)."""
-
-
-def _whitened(w: np.ndarray) -> np.ndarray:
-    """``W_k`` (N, l, n) in state coordinates the band's lines see orthonormally,
-    ``W_k T`` (N, l, r) with ``r <= n``.
-
-    The unknown columns b of B^e are real and act through every line at once, so the
-    real map b -> (W_k b)_k, stacked over lines, real and imaginary parts, decides how
-    well they are determined. In FNSI's state basis its columns are far from
-    orthogonal and, for a model with many more states than the band has modes, nearly
-    collinear: the states beyond the band's modes look alike on its lines. The normal
-    equations square that conditioning, and on the generalisation benchmark's seed-22
-    case 25 (34 states, 4 outputs, 50 lines) their costs were wrong by more than the
-    residual (an added column that raised the cost 45-fold, costs below zero), so the
-    ranking of locations was noise. With T = V_r diag(1/s_r) from the stacked map's
-    singular value decomposition, the kept directions have unit gain over the band and
-    those below :data:`STATE_RANK` of the largest, which no fit of double precision
-    resolves, are dropped: B^e's fits are unchanged up to them (b = T beta).
-    """
-    lines, outputs, n = w.shape
-    stacked = np.concatenate([w.real, w.imag]).reshape(2 * lines * outputs, n)
-    _, values, vt = np.linalg.svd(stacked, full_matrices=False)
-    keep = values > STATE_RANK * values[0]
-    return w @ (vt[keep].T / values[keep])
 
 
 def _solve_normal(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
