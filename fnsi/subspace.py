@@ -54,8 +54,10 @@ lines z_k = exp(j 2 pi f_k / fs) (several realisations add columns with the same
    triangular solve: the stabilisation diagram relies on it.
 6. B^e and D^e by linear least squares over all lines (Noel & Kerschen 2013):
    min sum_k ||Y(k) - (C (z_k I - A)^-1 B^e + D^e) E(k)||^2, linear in (B^e, D^e). The
-   normal equations are formed through the eigendecomposition A = V diag(lambda) V^-1, at
-   O(N q^2 n^2) cost, and solved by Cholesky after equilibration.
+   normal equations are formed through the eigendecomposition A = V diag(lambda) V^-1,
+   at O(N q^2 n^2) cost, or where that squares an ill-conditioned fit, in the state
+   coordinates the lines see orthonormally (:mod:`fnsi.whitening`), and solved by
+   Cholesky after equilibration.
 
 The extended-input columns are scaled to unit RMS for conditioning; the scaling is undone
 in B^e and D^e.
@@ -80,6 +82,7 @@ import scipy.linalg
 from fnsi.feedthrough import own_feedthrough_constraints
 from fnsi.spectra import Spectra
 from fnsi.statespace import StateSpaceModel
+from fnsi.whitening import whitening
 
 #: Extra singular vectors kept beyond ``max_order`` (randomised range finder oversampling).
 OVERSAMPLING = 20
@@ -692,10 +695,20 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
                    ) -> tuple[np.ndarray, np.ndarray]:
     """B^e and D^e minimising sum_k ||Y(k) - (C (z_k I - A)^-1 B^e + D^e) E(k)||^2.
 
-    Real unknowns theta = vec([B; D]) with normal equations Re(sum_k Phi_k^H Phi_k) theta =
-    Re(sum_k Phi_k^H Y(k)), Phi_k = E(k)^T kron [C (z_k I - A)^-1, I]. With A = V diag(lam)
-    V^-1, Ct = C V, W = V^-1 and d_kr = 1 / (z_k - lam_r), every block reduces to sums over
-    the lines of products E_a^* E_b d_kr^* d_ks, formed by matrix products.
+    Real unknowns theta = vec([B; D]); column a acts on line k through X_k =
+    [C (z_k I - A)^-1, I], and the normal equations Re(sum_k Phi_k^H Phi_k) theta =
+    Re(sum_k Phi_k^H Y(k)), Phi_k = E(k)^T kron X_k, are formed by sums over the lines.
+    In modal coordinates (A = V diag(lambda) V^-1) they cost O(N q^2 n^2), but they square
+    the conditioning of the states on the lines: at a decomposition's largest orders,
+    where the states beyond the band's modes look alike, B^e and D^e then came out of
+    rounding (the generalisation benchmark's seed-22 case 1 at order 54: a relative
+    perturbation of 1e-12 of the data moved the response between the lines by 18 % and
+    the automatic order from 42 to 54). They are solved when their equilibrated
+    reciprocal condition number is at least :data:`MODAL_RCOND` (most calls of a
+    diagnosis: 220 of 241 on a 5-DOF chain's); otherwise formed again with the states in
+    the coordinates the lines see orthonormally (:mod:`fnsi.whitening`), at O(N l n^2 +
+    N q^2 (n + l)^2), where the fit is as well conditioned as the excitation allows.
+    Either is solved by Cholesky after equilibration.
 
     Bias compensation (errors in variables): when E = E_0 + dE carries noise (basis
     functions of measured outputs), E[conj(E) E^T] = conj(E_0) E_0^T + conj(S_k), S_k =
@@ -730,8 +743,41 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
     B : ndarray, shape (n, q)
     D : ndarray, shape (l, q)
     """
+    n, q = A.shape[0], E.shape[2]
+    modal = _modal_normal_equations(A, C, E, Y, z, noise_covariance)
+    theta = None if modal is None else _solution(*modal, q, constraints, MODAL_RCOND)
+    if theta is None:
+        theta = _solution(*_whitened_normal_equations(A, C, E, Y, z, noise_covariance), q,
+                          constraints, 0.0)
+    return theta[:n], theta[n:]
+
+
+MODAL_RCOND = 1e-10
+"""Smallest reciprocal condition number of the equilibrated normal equations formed in
+modal coordinates that :func:`input_matrices` solves: rounding of their sums, about the
+machine epsilon (2.2e-16) of their size, then moves B^e and D^e by at most about 1e-6
+of theirs, far below anything a study compares (its order search weighs errors to 10 %,
+:data:`fnsi.simulation_order.TOLERANCE`). Below it the equations are formed again in
+whitened coordinates, at about 20 times the cost (21 of the 241 calls of a 5-DOF chain's
+diagnosis; 64 with 1e-8)."""
+
+MODAL_VECTOR_COND = 1e3
+"""Largest condition number of A's eigenvectors V for which :func:`input_matrices` forms
+the normal equations in modal coordinates (V^-1 multiplies every sum; FNSI's models at
+the orders a diagnosis searches gave 17-40)."""
+
+
+def _modal_normal_equations(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
+                            z: np.ndarray, noise_covariance: np.ndarray | None,
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Normal equations (G, g) of vec([B; D]) and the identity map to [B^e; D^e], formed
+    through A = V diag(lambda) V^-1 at O(N q^2 n^2) cost: with Ct = C V, W = V^-1 and
+    d_kr = 1 / (z_k - lambda_r), every block reduces to sums over the lines of products
+    E_a^* E_b d_kr^* d_ks; None when V is ill conditioned (:data:`MODAL_VECTOR_COND`)."""
     n, n_out, q = A.shape[0], C.shape[0], E.shape[2]
     lam, V = np.linalg.eig(A)
+    if not np.linalg.cond(V) <= MODAL_VECTOR_COND:
+        return None
     W = np.linalg.inv(V)
     Ct = C @ V
     realisations = E.shape[0]
@@ -763,48 +809,75 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
                                  axis=1).real.reshape(q * m)
         alpha = compensation_scale(G, G_noise)
         G, g = G - alpha * G_noise, g - alpha * g_noise
-    if constraints is None or constraints.shape[0] == 0:
-        theta = solve_normal_equations(G, g)
-    else:
-        N = scipy.linalg.null_space(constraints)
-        theta = N @ solve_normal_equations(N.T @ G @ N, N.T @ g)
-    theta = theta.reshape(q, m).T
-    return theta[:n], theta[n:]
+    return G, g, np.eye(n + n_out)
 
 
-COMPENSATION_KEEP = 0.1
-"""Least share of the uncompensated normal matrix's power, in any direction of the
-unknowns, that the bias compensation leaves (:func:`compensation_scale`): a noise
-estimate from a few periods is itself uncertain by tens of percent, so a direction it
-would leave with less than this is one the data no longer determine (a cubic spring
-under 20 % output noise, compensated in full, kept 31 % and its coefficient error fell
-from -26 % to -15 %)."""
+def _whitened_normal_equations(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
+                               z: np.ndarray, noise_covariance: np.ndarray | None,
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Normal equations (G, g) of the unknowns [beta_a; d_a] whose states are taken in the
+    coordinates the lines see orthonormally (:mod:`fnsi.whitening`), and the map
+    blockdiag(T, I) from them to the columns of [B^e; D^e]: Re(sum_k F_ab(k) M_k) summed
+    over the lines, M_k = [X_k T, I]^H [X_k T, I], X_k = C (z_k I - A)^-1 and F_ab(k) =
+    sum_r conj(E_ra(k)) E_rb(k) over the realisations r, at O(N l n^2 + N q^2 (n + l)^2)
+    cost."""
+    n_out, q = C.shape[0], E.shape[2]
+    x = transfer_rows(A, C, z)                                            # (N, l, n)
+    T = whitening(x)                                                      # (n, r)
+    r = T.shape[1]
+    sums = _LineSums(q, r, n_out)
+    g = np.zeros((q, r + n_out))
+    noise = None if noise_covariance is None else E.shape[0] * noise_covariance.conj()
+    noise_sums, g_noise = _LineSums(q, r, n_out), np.zeros_like(g)
+    for start in range(0, z.size, CHUNK_LINES):
+        sl = slice(start, start + CHUNK_LINES)
+        xw = x[sl] @ T                                                    # X_k T, (K, l, r)
+        e = E[:, sl]
+        # conjugated as the products E^* E^T and E^* Y^T
+        sums.add(np.einsum("rka,rkb->abk", e.conj(), e), xw)
+        g += _projections(xw, Y[:, sl], e.conj()).real
+        if noise is not None:   # one realisation's noise covariance, R times
+            noise_sums.add(np.moveaxis(noise[sl, :, :q], 0, 2), xw)
+            g_noise += _projections(xw, noise[None, sl, :, q:], None).real
+    G, g = sums.normal_matrix(), g.reshape(-1)
+    if noise is not None:
+        G_noise = noise_sums.normal_matrix()
+        alpha = compensation_scale(G, G_noise)
+        G, g = G - alpha * G_noise, g - alpha * g_noise.reshape(-1)
+    return G, g, scipy.linalg.block_diag(T, np.eye(n_out))
 
 
-def compensation_scale(G: np.ndarray, N: np.ndarray) -> float:
-    """Scale alpha in (0, 1] of the subtracted noise part N so that G - alpha N keeps at
-    least :data:`COMPENSATION_KEEP` of G in every direction.
+def _solution(G: np.ndarray, g: np.ndarray, to_theta: np.ndarray, q: int,
+              constraints: np.ndarray | None, min_rcond: float) -> np.ndarray | None:
+    """[B^e; D^e] (n + l, q) from the normal equations G phi = g of the unknowns phi,
+    theta_a = to_theta phi_a, in the null space of the ``constraints`` on theta; None when
+    the equilibrated equations' reciprocal condition number is below ``min_rcond``."""
+    N = None
+    if constraints is not None and constraints.shape[0] > 0:
+        N = scipy.linalg.null_space(constraints @ scipy.linalg.block_diag(*[to_theta] * q))
+        G, g = N.T @ G @ N, N.T @ g
+    phi = solve_normal_equations(G, g, min_rcond=min_rcond)
+    if phi is None:
+        return None
+    phi = phi if N is None else N @ phi
+    return to_theta @ phi.reshape(q, -1).T
 
-    The noise covariance of the bases comes from the spread of a few periods: on a 5-DOF
-    chain measured in acceleration, with two kept periods, it exceeded the power of the
-    cubic spring's basis on some directions, and the compensated normal matrix, no longer
-    positive, gave NaN coefficients. Where the estimate stays below 1 -
-    :data:`COMPENSATION_KEEP` of the power (the usual case) alpha is 1 and the
-    compensation is the full one.
 
-    Parameters
-    ----------
-    G, N : ndarray, shape (p, p)
-        Real symmetric normal matrix of the noisy regressors (positive semidefinite) and
-        its expected noise part.
+def transfer_rows(A: np.ndarray, C: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """C (z_k I - A)^-1 (N, l, n) of every line.
+
+    With the Schur form A = U S U^H (U unitary, S upper triangular), C (z I - A)^-1 =
+    X U^H where X (z I - S) = C U is solved column by column for all lines at once:
+    O(N l n^2) against O(N n^3) for a solve per line, and backward stable, unlike the
+    eigenvectors of A, which are ill conditioned when poles nearly coincide.
     """
-    scale = np.sqrt(np.diag(G))
-    scale[scale == 0] = 1.0
-    Gs, Ns = G / np.outer(scale, scale), N / np.outer(scale, scale)
-    # a unit diagonal: the ridge keeps collinear regressors' G positive definite
-    top = scipy.linalg.eigh(Ns, Gs + 1e-10 * np.eye(len(Gs)), eigvals_only=True,
-                            subset_by_index=[len(Gs) - 1, len(Gs) - 1])[0]
-    return 1.0 if top <= 1.0 - COMPENSATION_KEEP else (1.0 - COMPENSATION_KEEP) / top
+    S, U = scipy.linalg.schur(A.astype(complex), output="complex", check_finite=False)
+    rhs = C @ U                                                           # (l, n)
+    x = np.empty((z.size, *rhs.shape), dtype=complex)
+    for j in range(len(S)):
+        # X[:, j] (z - S_jj) = (C U)[:, j] + sum_{i<j} X[:, i] S_ij, on every line
+        x[:, :, j] = (rhs[:, j] + x[:, :, :j] @ S[:j, j]) / (z - S[j, j])[:, None]
+    return x @ U.conj().T
 
 
 class _GramSums:
@@ -856,16 +929,105 @@ def _add_weighted_grams(T: np.ndarray, F: np.ndarray, d: np.ndarray) -> None:
                 T[b, a] += block.conj().T
 
 
-def solve_normal_equations(G: np.ndarray, g: np.ndarray) -> np.ndarray:
+class _LineSums:
+    """Sums over the lines of F_ab(k) M_k, M_k = [X_k T, I]^H [X_k T, I], by block: the
+    states' (X_k T)^H (X_k T), their cross terms (X_k T)^H with D^e, and F_ab(k) alone
+    for D^e's identity, which is never multiplied out (:func:`input_matrices`)."""
+
+    def __init__(self, q: int, r: int, n_out: int) -> None:
+        self.shape = q, r, n_out
+        self.states = np.zeros((q * q, r * r), dtype=complex)
+        self.cross = np.zeros((q * q, r * n_out), dtype=complex)
+        self.total = np.zeros(q * q, dtype=complex)
+
+    def add(self, F: np.ndarray, xw: np.ndarray) -> None:
+        """Add a chunk of lines: F (q, q, K), xw (K, l, r)."""
+        F = F.reshape(-1, len(xw))
+        xh = np.swapaxes(xw.conj(), 1, 2)                                # (K, r, l)
+        self.states += F @ np.matmul(xh, xw).reshape(len(xw), -1)
+        self.cross += F @ xh.reshape(len(xw), -1)
+        self.total += F.sum(axis=1)
+
+    def normal_matrix(self) -> np.ndarray:
+        """The real normal matrix (q p, q p), p = r + l, of the unknowns [beta_a; d_a]."""
+        q, r, n_out = self.shape
+        p = r + n_out
+        G = np.zeros((q, p, q, p))
+        G[:, :r, :, :r] = self.states.real.reshape(q, q, r, r).transpose(0, 2, 1, 3)
+        cross = self.cross.real.reshape(q, q, r, n_out)
+        G[:, :r, :, r:] = cross.transpose(0, 2, 1, 3)
+        # Re(F_ab (X T)) = Re(F_ba (X T)^H)^T, F being Hermitian in (a, b)
+        G[:, r:, :, :r] = cross.transpose(1, 3, 0, 2)
+        G[:, r:, :, r:] = (self.total.real.reshape(q, q)[:, None, :, None]
+                           * np.eye(n_out)[None, :, None, :])
+        return G.reshape(q * p, q * p)
+
+
+def _projections(xw: np.ndarray, Y: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """sum_k sum_r w_ra(k) [X_k T, I]^H Y_r(k) (q, r + l) for Y (R, K, l) and weights
+    w (R, K, q); without weights, Y (R, K, q, l) holds each column's own right-hand side
+    (the noise covariance of the bases with the outputs)."""
+    if weights is not None:
+        Y = weights[..., None] * Y[:, :, None, :]                          # (R, K, q, l)
+    Y = Y.sum(axis=0)                                                     # (K, q, l)
+    states = np.einsum("kli,kal->ai", xw.conj(), Y, optimize=True)
+    return np.concatenate([states, Y.sum(axis=0)], axis=1)
+
+
+COMPENSATION_KEEP = 0.1
+"""Least share of the uncompensated normal matrix's power, in any direction of the
+unknowns, that the bias compensation leaves (:func:`compensation_scale`): a noise
+estimate from a few periods is itself uncertain by tens of percent, so a direction it
+would leave with less than this is one the data no longer determine (a cubic spring
+under 20 % output noise, compensated in full, kept 31 % and its coefficient error fell
+from -26 % to -15 %)."""
+
+
+def compensation_scale(G: np.ndarray, N: np.ndarray) -> float:
+    """Scale alpha in (0, 1] of the subtracted noise part N so that G - alpha N keeps at
+    least :data:`COMPENSATION_KEEP` of G in every direction.
+
+    The noise covariance of the bases comes from the spread of a few periods: on a 5-DOF
+    chain measured in acceleration, with two kept periods, it exceeded the power of the
+    cubic spring's basis on some directions, and the compensated normal matrix, no longer
+    positive, gave NaN coefficients. Where the estimate stays below 1 -
+    :data:`COMPENSATION_KEEP` of the power (the usual case) alpha is 1 and the
+    compensation is the full one.
+
+    Parameters
+    ----------
+    G, N : ndarray, shape (p, p)
+        Real symmetric normal matrix of the noisy regressors (positive semidefinite) and
+        its expected noise part.
+    """
+    scale = np.sqrt(np.diag(G))
+    scale[scale == 0] = 1.0
+    Gs, Ns = G / np.outer(scale, scale), N / np.outer(scale, scale)
+    # a unit diagonal: the ridge keeps collinear regressors' G positive definite
+    top = scipy.linalg.eigh(Ns, Gs + 1e-10 * np.eye(len(Gs)), eigvals_only=True,
+                            subset_by_index=[len(Gs) - 1, len(Gs) - 1])[0]
+    return 1.0 if top <= 1.0 - COMPENSATION_KEEP else (1.0 - COMPENSATION_KEEP) / top
+
+
+def solve_normal_equations(G: np.ndarray, g: np.ndarray, *, min_rcond: float = 0.0
+                           ) -> np.ndarray | None:
     """x solving G x = g, G symmetric positive (semi)definite, by Cholesky after
-    equilibration; the minimum-norm solution when G is singular."""
+    equilibration; the minimum-norm solution when G is singular. With ``min_rcond`` > 0,
+    None instead when the equilibrated G's reciprocal condition number (LAPACK's estimate
+    from the Cholesky factor) is below it, or G is singular."""
     diag = np.sqrt(np.diag(G))
     diag[diag == 0] = 1.0
     Gs = G / diag[:, None] / diag[None, :]
     try:
-        x = scipy.linalg.cho_solve(scipy.linalg.cho_factor(Gs, check_finite=False),
-                                   g / diag, check_finite=False)
+        factor = scipy.linalg.cho_factor(Gs, check_finite=False)
     except np.linalg.LinAlgError:
+        if min_rcond > 0:
+            return None
         # rank-deficient regression (e.g. collinear basis functions): minimum-norm solution
-        x = scipy.linalg.lstsq(Gs, g / diag, check_finite=False)[0]
-    return x / diag
+        return scipy.linalg.lstsq(Gs, g / diag, check_finite=False)[0] / diag
+    if min_rcond > 0:
+        rcond, _ = scipy.linalg.lapack.dpocon(factor[0], np.abs(Gs).sum(axis=0).max(),
+                                              uplo="L" if factor[1] else "U")
+        if not rcond >= min_rcond:
+            return None
+    return scipy.linalg.cho_solve(factor, g / diag, check_finite=False) / diag

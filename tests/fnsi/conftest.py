@@ -107,3 +107,12 @@ def single():
 def chain():
     """The :func:`chain_model` factory."""
     return chain_model
+
+
+@pytest.fixture(params=["modal", "whitened"])
+def formation(request, monkeypatch):
+    """Each way :func:`fnsi.subspace.input_matrices` forms its normal equations: in modal
+    coordinates where well conditioned (the default), or always whitened."""
+    if request.param == "whitened":
+        monkeypatch.setattr("fnsi.subspace.MODAL_RCOND", np.inf)
+    return request.param

@@ -65,7 +65,7 @@ def test_the_constraints_are_the_elements_own_feedthrough():
     np.testing.assert_allclose(L @ _theta(B, D), expected, rtol=1e-12)
 
 
-def test_constrained_least_squares_is_exact_on_exact_data_and_optimal_on_noisy_data():
+def test_constrained_least_squares_is_exact_on_exact_data_and_optimal_on_noisy_data(formation):
     A, C, z, E = _problem()
     L = own_feedthrough_constraints(C, ELEMENTS, OUTPUTS, n_inputs=1)
     rng = np.random.default_rng(2)
