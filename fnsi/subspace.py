@@ -744,10 +744,13 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
     D : ndarray, shape (l, q)
     """
     n, q = A.shape[0], E.shape[2]
-    modal = _modal_normal_equations(A, C, E, Y, z, noise_covariance)
-    theta = None if modal is None else _solution(*modal, q, constraints, MODAL_RCOND)
+    lam, V = np.linalg.eig(A)
+    modal = np.linalg.cond(V) <= MODAL_VECTOR_COND
+    theta = (_solution(*_modal_normal_equations(lam, V, C, E, Y, z, noise_covariance), q,
+                       constraints, MODAL_RCOND) if modal else None)
     if theta is None:
-        theta = _solution(*_whitened_normal_equations(A, C, E, Y, z, noise_covariance), q,
+        x = transfer_rows(A, C, z, eigen=(lam, V) if modal else None)
+        theta = _solution(*_whitened_normal_equations(x, E, Y, z, noise_covariance), q,
                           constraints, 0.0)
     return theta[:n], theta[n:]
 
@@ -763,21 +766,18 @@ diagnosis; 64 with 1e-8)."""
 
 MODAL_VECTOR_COND = 1e3
 """Largest condition number of A's eigenvectors V for which :func:`input_matrices` forms
-the normal equations in modal coordinates (V^-1 multiplies every sum; FNSI's models at
-the orders a diagnosis searches gave 17-40)."""
+the normal equations, or the transfer rows, in modal coordinates (V^-1 multiplies every
+sum; FNSI's models at the orders a diagnosis searches gave 17-40)."""
 
 
-def _modal_normal_equations(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
-                            z: np.ndarray, noise_covariance: np.ndarray | None,
-                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _modal_normal_equations(lam: np.ndarray, V: np.ndarray, C: np.ndarray, E: np.ndarray,
+                            Y: np.ndarray, z: np.ndarray, noise_covariance: np.ndarray | None,
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Normal equations (G, g) of vec([B; D]) and the identity map to [B^e; D^e], formed
     through A = V diag(lambda) V^-1 at O(N q^2 n^2) cost: with Ct = C V, W = V^-1 and
     d_kr = 1 / (z_k - lambda_r), every block reduces to sums over the lines of products
-    E_a^* E_b d_kr^* d_ks; None when V is ill conditioned (:data:`MODAL_VECTOR_COND`)."""
-    n, n_out, q = A.shape[0], C.shape[0], E.shape[2]
-    lam, V = np.linalg.eig(A)
-    if not np.linalg.cond(V) <= MODAL_VECTOR_COND:
-        return None
+    E_a^* E_b d_kr^* d_ks."""
+    n, n_out, q = len(lam), C.shape[0], E.shape[2]
     W = np.linalg.inv(V)
     Ct = C @ V
     realisations = E.shape[0]
@@ -812,17 +812,16 @@ def _modal_normal_equations(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.n
     return G, g, np.eye(n + n_out)
 
 
-def _whitened_normal_equations(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
-                               z: np.ndarray, noise_covariance: np.ndarray | None,
+def _whitened_normal_equations(x: np.ndarray, E: np.ndarray, Y: np.ndarray, z: np.ndarray,
+                               noise_covariance: np.ndarray | None,
                                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Normal equations (G, g) of the unknowns [beta_a; d_a] whose states are taken in the
     coordinates the lines see orthonormally (:mod:`fnsi.whitening`), and the map
     blockdiag(T, I) from them to the columns of [B^e; D^e]: Re(sum_k F_ab(k) M_k) summed
-    over the lines, M_k = [X_k T, I]^H [X_k T, I], X_k = C (z_k I - A)^-1 and F_ab(k) =
-    sum_r conj(E_ra(k)) E_rb(k) over the realisations r, at O(N l n^2 + N q^2 (n + l)^2)
-    cost."""
-    n_out, q = C.shape[0], E.shape[2]
-    x = transfer_rows(A, C, z)                                            # (N, l, n)
+    over the lines, M_k = [X_k T, I]^H [X_k T, I], X_k = C (z_k I - A)^-1 the transfer
+    rows ``x`` (N, l, n) and F_ab(k) = sum_r conj(E_ra(k)) E_rb(k) over the realisations
+    r, at O(N l n^2 + N q^2 (n + l)^2) cost."""
+    n_out, q = x.shape[1], E.shape[2]
     T = whitening(x)                                                      # (n, r)
     r = T.shape[1]
     sums = _LineSums(q, r, n_out)
@@ -863,14 +862,21 @@ def _solution(G: np.ndarray, g: np.ndarray, to_theta: np.ndarray, q: int,
     return to_theta @ phi.reshape(q, -1).T
 
 
-def transfer_rows(A: np.ndarray, C: np.ndarray, z: np.ndarray) -> np.ndarray:
+def transfer_rows(A: np.ndarray, C: np.ndarray, z: np.ndarray,
+                  eigen: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """C (z_k I - A)^-1 (N, l, n) of every line.
 
-    With the Schur form A = U S U^H (U unitary, S upper triangular), C (z I - A)^-1 =
-    X U^H where X (z I - S) = C U is solved column by column for all lines at once:
-    O(N l n^2) against O(N n^3) for a solve per line, and backward stable, unlike the
-    eigenvectors of A, which are ill conditioned when poles nearly coincide.
+    With A's eigendecomposition ``eigen`` = (lambda, V), well conditioned
+    (:data:`MODAL_VECTOR_COND`): (C V) diag(1 / (z_k - lambda)) V^-1, one matrix product.
+    Otherwise from the Schur form A = U S U^H (U unitary, S upper triangular): X U^H,
+    where X (z I - S) = C U is solved column by column for all lines at once, O(N l n^2)
+    against O(N n^3) for a solve per line and backward stable where eigenvectors are
+    not (poles that nearly coincide).
     """
+    if eigen is not None:
+        lam, V = eigen
+        d = 1.0 / (z[:, None] - lam[None, :])
+        return ((C @ V)[None] * d[:, None, :]) @ np.linalg.inv(V)
     S, U = scipy.linalg.schur(A.astype(complex), output="complex", check_finite=False)
     rhs = C @ U                                                           # (l, n)
     x = np.empty((z.size, *rhs.shape), dtype=complex)

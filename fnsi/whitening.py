@@ -47,12 +47,16 @@ def whitening(x: np.ndarray) -> np.ndarray:
         Real; the unknowns are b = T beta.
     """
     lines, outputs, p = x.shape
-    stacked = np.concatenate([x.real, x.imag]).reshape(2 * lines * outputs, p)
+    # real and imaginary parts stacked, in the column-major order LAPACK factors in place
+    stacked = np.empty((2 * lines * outputs, p), order="F")
+    stacked[: lines * outputs] = x.real.reshape(-1, p)
+    stacked[lines * outputs:] = x.imag.reshape(-1, p)
     norms = np.linalg.norm(stacked, axis=0)
     norms[norms == 0] = 1.0
+    stacked /= norms
     # the triangular factor has the stacked map's singular values at a fraction of the cost
     # of an SVD of the tall matrix, whose left vectors are never needed
-    r = scipy.linalg.qr(stacked / norms, mode="r", check_finite=False)[0][:p]
-    _, values, vt = np.linalg.svd(r, full_matrices=False)
+    factored, _, _, _ = scipy.linalg.lapack.dgeqrf(stacked, overwrite_a=True)
+    _, values, vt = np.linalg.svd(np.triu(factored[:p]), full_matrices=False)
     keep = values > RANK * values[0]
     return (vt[keep].T / values[keep]) / norms[:, None]

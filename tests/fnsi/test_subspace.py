@@ -20,6 +20,7 @@ from fnsi.subspace import (
     compensation_scale,
     decompose,
     input_matrices,
+    transfer_rows,
 )
 
 FS, PERIOD, BAND = 200.0, 2000, (3.0, 45.0)
@@ -336,3 +337,14 @@ def test_input_matrices_at_the_largest_order_follow_the_data_not_rounding():
     # (directions the lines resolve to 1e-8, fnsi.whitening.RANK, amplify the nudge at
     # most 1e8-fold); the normal equations in FNSI's basis moved it by 0.11
     assert np.abs(response(*nudged) - reference).max() < 1e-6 * np.abs(reference).max()
+
+
+def test_transfer_rows_from_the_eigenvectors_and_from_the_schur_form_agree():
+    rng = np.random.default_rng(4)
+    A = np.diag([0.9, 0.5, -0.3, 0.7]) + 0.05 * rng.standard_normal((4, 4))
+    C = rng.standard_normal((3, 4))
+    z = np.exp(1j * np.linspace(0.05, 3.0, 50))
+    direct = np.array([C @ np.linalg.inv(w * np.eye(4) - A) for w in z])
+    # rounding only: V's condition number here is below 10
+    for rows in (transfer_rows(A, C, z), transfer_rows(A, C, z, eigen=np.linalg.eig(A))):
+        np.testing.assert_allclose(rows, direct, rtol=1e-10, atol=1e-12 * np.abs(direct).max())
