@@ -703,12 +703,13 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
     where the states beyond the band's modes look alike, B^e and D^e then came out of
     rounding (the generalisation benchmark's seed-22 case 1 at order 54: a relative
     perturbation of 1e-12 of the data moved the response between the lines by 18 % and
-    the automatic order from 42 to 54). They are solved when their equilibrated
-    reciprocal condition number is at least :data:`MODAL_RCOND` (most calls of a
-    diagnosis: 220 of 241 on a 5-DOF chain's); otherwise formed again with the states in
-    the coordinates the lines see orthonormally (:mod:`fnsi.whitening`), at O(N l n^2 +
-    N q^2 (n + l)^2), where the fit is as well conditioned as the excitation allows.
-    Either is solved by Cholesky after equilibration.
+    the automatic order from 42 to 54). They are solved when V is well conditioned
+    (:data:`MODAL_VECTOR_COND`) and their equilibrated reciprocal condition number is
+    at least :data:`MODAL_RCOND` (220 of the 241 calls of a 5-DOF chain's diagnosis);
+    otherwise formed again with the states in the coordinates the lines see
+    orthonormally (:mod:`fnsi.whitening`), at O(N l n^2 + N q^2 (n + l)^2), where the fit
+    is as well conditioned as the excitation allows. Either is solved by Cholesky after
+    equilibration.
 
     Bias compensation (errors in variables): when E = E_0 + dE carries noise (basis
     functions of measured outputs), E[conj(E) E^T] = conj(E_0) E_0^T + conj(S_k), S_k =
