@@ -40,6 +40,7 @@ from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.spectra import displacement_velocity, kept_record, without_quiet_low_lines
 from fnsi.statespace import StateSpaceModel
+from fnsi.subspace import transfer_rows
 from fnsi.whitening import whitening
 
 
@@ -160,13 +161,7 @@ class ScreeningProblem:
         self.weights = 1.0 / np.sqrt(noise)                                    # S, (l,)
         y = y_lines * self.weights                                             # S Y, (R, N, l)
         z = np.exp(2j * np.pi * self.lines / self.period_length)
-        n = model.order
-        # W_k = S C (z_k I - A)^{-1}: one batched solve of (z_k I - A)^T W^T = (S C)^T.
-        shifted = z[:, None, None] * np.eye(n) - model.A
-        wc = (model.C * self.weights[:, None]).T
-        w = np.linalg.solve(np.swapaxes(shifted, 1, 2), np.broadcast_to(wc, (z.size, n,
-                                                                             wc.shape[1])))
-        w = np.swapaxes(w, 1, 2)
+        w = transfer_rows(model.A, model.C * self.weights[:, None], z)         # S C (z I - A)^-1
         w = w @ whitening(w)                                                   # (N, l, r)
         n = w.shape[2]   # the unknowns of a column of B^e from here on: r whitened states
         self._w, self._y = w, y
