@@ -751,7 +751,7 @@ def input_matrices(A: np.ndarray, C: np.ndarray, E: np.ndarray, Y: np.ndarray,
                        constraints, MODAL_RCOND) if modal else None)
     if theta is None:
         x = transfer_rows(A, C, z, eigen=(lam, V) if modal else None)
-        theta = _solution(*_whitened_normal_equations(x, E, Y, z, noise_covariance), q,
+        theta = _solution(*_whitened_normal_equations(x, E, Y, noise_covariance), q,
                           constraints, 0.0)
     return theta[:n], theta[n:]
 
@@ -813,7 +813,7 @@ def _modal_normal_equations(lam: np.ndarray, V: np.ndarray, C: np.ndarray, E: np
     return G, g, np.eye(n + n_out)
 
 
-def _whitened_normal_equations(x: np.ndarray, E: np.ndarray, Y: np.ndarray, z: np.ndarray,
+def _whitened_normal_equations(x: np.ndarray, E: np.ndarray, Y: np.ndarray,
                                noise_covariance: np.ndarray | None,
                                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Normal equations (G, g) of the unknowns [beta_a; d_a] whose states are taken in the
@@ -829,7 +829,7 @@ def _whitened_normal_equations(x: np.ndarray, E: np.ndarray, Y: np.ndarray, z: n
     g = np.zeros((q, r + n_out))
     noise = None if noise_covariance is None else E.shape[0] * noise_covariance.conj()
     noise_sums, g_noise = _LineSums(q, r, n_out), np.zeros_like(g)
-    for start in range(0, z.size, CHUNK_LINES):
+    for start in range(0, len(x), CHUNK_LINES):
         sl = slice(start, start + CHUNK_LINES)
         xw = x[sl] @ T                                                    # X_k T, (K, l, r)
         e = E[:, sl]
