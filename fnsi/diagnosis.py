@@ -11,7 +11,11 @@ candidate missing effects in three stages, from cheap to expensive:
    the best with a nonparametric cubic spline (automatic knots, Eq. 19-22) plus the
    velocity functions acting through one force (rank-one B^e), which also gives the
    shape of the force. The reduction of the noise-weighted residual ranks the locations;
-   one set of line-wise products serves them all.
+   one set of line-wise products serves them all. The held poles are those of a model
+   without the effect, which may have moved them far: the best-screened locations are
+   therefore also screened with the poles FNSI identifies with the cheap functions there
+   (:mod:`fnsi.reidentified_screening`), and the best laws at the best of those are
+   validated too (:func:`reidentified_proposals`).
 2. **Compare kinds** at the best locations, and at every connection among the DOFs of
    the locations the screening cannot tell apart (:func:`kind_locations`), once per
    place (locations whose relative motions agree are one, :func:`distinct_locations`),
@@ -91,6 +95,7 @@ from fnsi.errors import json_float
 from fnsi.identification import identify
 from fnsi.nonlinear import NonlinearElement
 from fnsi.refinement import STALL_WINDOW
+from fnsi.reidentified_screening import held_part, reidentified_scores
 from fnsi.screening import ScreeningProblem
 from fnsi.statespace import StateSpaceModel
 from fnsi.units import ModelUnits
@@ -490,15 +495,22 @@ def _velocity_elements(location: Location, v: np.ndarray) -> list[NonlinearEleme
             NonlinearElement("quadratic_damping", location.dof, location.ref)]
 
 
-def _proxy_cost(problem: ScreeningProblem, location: Location) -> float:
-    """Cheap first score: linear spring, x^2, x^3 and the velocity functions, each with
-    its own B^e column (5 functions instead of the spline's 12)."""
+def _generic_elements(problem: ScreeningProblem, location: Location
+                      ) -> list[NonlinearElement]:
+    """The screenings' generic laws at ``location``: x^2, x^3 and the velocity functions
+    (4 functions instead of the spline's 12 and the velocity ones)."""
     _, v = problem.motion.relative(location.dof, location.ref)
     dof, ref = location.dof, location.ref
-    elements = [NonlinearElement("polynomial", dof, ref, exponent=2.0, signed=False),
-                NonlinearElement("polynomial", dof, ref, exponent=3.0),
-                *_velocity_elements(location, v)]
-    columns = [problem.linear_spectrum(dof, ref), *map(problem.basis_spectra, elements)]
+    return [NonlinearElement("polynomial", dof, ref, exponent=2.0, signed=False),
+            NonlinearElement("polynomial", dof, ref, exponent=3.0),
+            *_velocity_elements(location, v)]
+
+
+def _proxy_cost(problem: ScreeningProblem, location: Location) -> float:
+    """Cheap first score: linear spring and the generic laws, each with its own B^e
+    column."""
+    columns = [problem.linear_spectrum(location.dof, location.ref),
+               *map(problem.basis_spectra, _generic_elements(problem, location))]
     return problem.fit(np.concatenate(columns, axis=2))[0]
 
 
@@ -841,6 +853,76 @@ def validated_proposals(proposals: Sequence[Proposal], top: Sequence[LocationSco
         return list(proposals[:count])
     places = {score.location for score in top}
     return [p for p in proposals if p.location in places] or list(proposals[:count])
+
+
+REIDENTIFIED_LOCATIONS = 24
+"""Best-screened locations identified again with their own poles
+(:func:`reidentified_proposals`; about 0.05 s each for a 5-DOF chain)."""
+
+
+def reidentified_proposals(study: Study, base: Revision, model: StateSpaceModel,
+                           problem: ScreeningProblem, scores: Sequence[LocationScore],
+                           chosen: Sequence[Proposal], intervals: int
+                           ) -> tuple[list[Proposal], str | None]:
+    """The best laws where FNSI, with the poles identified again, places the effect.
+
+    The :data:`REIDENTIFIED_LOCATIONS` best-screened locations are screened again with
+    the poles FNSI identifies with the generic laws there (:mod:`fnsi.
+    reidentified_screening`). When the best is not one of the ``chosen`` proposals'
+    places (the same relative motion counts as the same place), its kinds are compared
+    with its own poles held (:func:`compare_kinds`) and the best displacement law and
+    the best velocity law there are validated too: with the poles off, the two families
+    trade places as they do in :func:`quadrature_proposals`.
+
+    Parameters
+    ----------
+    study, base : Study, Revision
+        The study and the diagnosed revision.
+    model : StateSpaceModel
+        The fixed-pole screening's model (its order is the one identified again).
+    problem : ScreeningProblem
+        The fixed-pole screening problem.
+    scores : sequence of LocationScore
+        Stage 1, best first.
+    chosen : sequence of Proposal
+        The proposals validated anyway.
+    intervals : int
+        Spline intervals of the location's screening score.
+
+    Returns
+    -------
+    proposals : list of Proposal
+        At most two, best first; empty when the best place is among ``chosen``'s.
+    note : str or None
+        What was added and why, for the diagnosis's notes.
+    """
+    held = {_law(e) for e in base.elements}
+    trials = [(s.location, tuple(e for e in _generic_elements(problem, s.location)
+                                 if _law(e) not in held))
+              for s in scores[:REIDENTIFIED_LOCATIONS]]
+    ranked = reidentified_scores(study.estimation, replace(study.settings,
+                                                           elements=base.elements),
+                                 model.order, problem, [t for t in trials if t[1]])
+    if not ranked:
+        return [], None
+    best: Location = ranked[0].key
+    x, _ = problem.motion.relative(best.dof, best.ref)
+    if any(_same_motion(x, problem.motion.relative(p.location.dof, p.location.ref)[0])
+           for p in chosen):
+        return [], None
+    own = ScreeningProblem(study.identified_estimation,
+                           held_part(ranked[0].model, len(base.elements)),
+                           study.settings.band, study.settings.discard_periods)
+    score = screen_locations(own, [best], intervals)[0]
+    kinds = [p for p in compare_kinds(own, score) if _law(p.element) not in held]
+    picked = [next((p for p in kinds if (p.effect in DISSIPATIVE) is family), None)
+              for family in (False, True)]
+    proposals = sorted((p for p in picked if p is not None), key=lambda p: -p.reduction)
+    note = (f"with the poles identified again at each of the {len(ranked)} best-screened "
+            f"locations (FNSI at order {model.order} with x^2, x^3, friction and "
+            f"quadratic-damping functions there), {best.phrase} explains the estimation "
+            f"data best: its best displacement and velocity laws were validated too")
+    return proposals, note
 
 
 def blind_screening(proposals: Sequence[Proposal], before: float, floor: float) -> bool:
@@ -1571,8 +1653,9 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
 
     start = time.perf_counter()
     report(0.0, "preparing the screening")
-    problem = ScreeningProblem(study.identified_estimation, _screening_model(study, base),
-                               study.settings.band, study.settings.discard_periods)
+    model = _screening_model(study, base)
+    problem = ScreeningProblem(study.identified_estimation, model, study.settings.band,
+                               study.settings.discard_periods)
     locations = candidate_locations(base.model.output_names, study.connections)
     scores = screen_locations(problem, locations, settings.screening_intervals,
                               progress=lambda f, m: report(0.3 * f, m))
@@ -1590,8 +1673,15 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     start = time.perf_counter()
     chosen = validated_proposals(proposals, compared[: settings.top_locations],
                                  settings.validated_candidates, before, floor)
+    report(0.35, "screening the best locations again with their own poles")
+    extra, note = reidentified_proposals(study, base, model, problem, scores, chosen,
+                                         settings.screening_intervals)
+    chosen += extra
+    notes = [note] if note else []
+    timings["reidentified_s"] = time.perf_counter() - start
+    start = time.perf_counter()
     steps = len(chosen) + int(settings.include_missing_mode) + settings.curve_locations
-    curves, notes = [], []
+    curves = []
     if blind_screening(proposals, before, floor):
         notes.append(f"with the revision's poles held no proposal explains more than "
                      f"{100 * proposals[0].reduction:.2g} % of the estimation residual: "
