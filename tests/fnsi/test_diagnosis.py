@@ -29,6 +29,7 @@ import pytest
 from fnsi.acquisition import acquire
 from fnsi.claim import claim_test
 from fnsi.diagnosis import (
+    DISSIPATIVE,
     MAX_FRICTION_WIDTH,
     MAX_KIND_LOCATIONS,
     TRIAL_STEPS,
@@ -50,6 +51,8 @@ from fnsi.diagnosis import (
     kind_locations,
     quadrature_proposals,
     rank_candidates,
+    reidentified_proposals,
+    screen_locations,
     validated_proposals,
 )
 from fnsi.excitation import Excitation, periodic_noise
@@ -675,3 +678,24 @@ def test_the_other_law_is_validated_where_a_coefficient_is_imaginary():
     assert [(p.effect, p.location) for p in quadrature_proposals(validated[1:], proposals)
             ] == [(Effect.QUADRATIC_DAMPING, there)]
     assert quadrature_proposals(validated[1:2], proposals) == []
+
+
+def test_the_best_laws_where_reidentified_poles_place_the_effect_are_validated_too():
+    """A cubic spring between x3 and x4 strong enough to move the resonances: FNSI with
+    the generic laws at each location places it there, and its best displacement law
+    (the cubic spring) and best velocity law are added to what is validated, unless a
+    proposal there is validated anyway."""
+    study = linear_study(NonlinearElement("polynomial", "x3", "x4", exponent=3.0,
+                                          coefficients=(5e8,)))
+    base = study.revisions[0]
+    problem = ScreeningProblem(study.identified_estimation, base.model, BAND,
+                               SETTINGS.discard_periods)
+    scores = screen_locations(problem, candidate_locations(NAMES), 8)
+    added, note = reidentified_proposals(study, base, base.model, problem, scores, [], 8)
+    place = Location("x3", "x4")
+    assert [(p.location, p.effect in DISSIPATIVE) for p in added] == [(place, False),
+                                                                      (place, True)]
+    assert added[0].effect is Effect.CUBIC_STIFFNESS
+    assert "between x3 and x4 explains the estimation data best" in note
+    assert reidentified_proposals(study, base, base.model, problem, scores, added[1:],
+                                  8) == ([], None)
