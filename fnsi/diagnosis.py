@@ -862,12 +862,13 @@ REIDENTIFIED_LOCATIONS = 24
 
 def reidentified_proposals(study: Study, base: Revision, model: StateSpaceModel,
                            problem: ScreeningProblem, scores: Sequence[LocationScore],
-                           chosen: Sequence[Proposal], intervals: int
+                           chosen: Sequence[Proposal], intervals: int, workers: int = 1
                            ) -> tuple[list[Proposal], str | None]:
     """The best laws where FNSI, with the poles identified again, places the effect.
 
-    The :data:`REIDENTIFIED_LOCATIONS` best-screened locations are screened again with
-    the poles FNSI identifies with the generic laws there (:mod:`fnsi.
+    The :data:`REIDENTIFIED_LOCATIONS` best-screened distinct locations
+    (:func:`distinct_locations`: one motion gives one model) are screened again with the
+    poles FNSI identifies with the generic laws there (:mod:`fnsi.
     reidentified_screening`). When the best is not one of the ``chosen`` proposals'
     places (the same relative motion counts as the same place), its kinds are compared
     with its own poles held (:func:`compare_kinds`) and the best displacement law and
@@ -888,6 +889,9 @@ def reidentified_proposals(study: Study, base: Revision, model: StateSpaceModel,
         The proposals validated anyway.
     intervals : int
         Spline intervals of the location's screening score.
+    workers : int
+        Identifications run at the same time, in threads (the result does not depend
+        on it).
 
     Returns
     -------
@@ -899,10 +903,11 @@ def reidentified_proposals(study: Study, base: Revision, model: StateSpaceModel,
     held = {_law(e) for e in base.elements}
     trials = [(s.location, tuple(e for e in _generic_elements(problem, s.location)
                                  if _law(e) not in held))
-              for s in scores[:REIDENTIFIED_LOCATIONS]]
+              for s in distinct_locations(problem, scores)[:REIDENTIFIED_LOCATIONS]]
     ranked = reidentified_scores(study.estimation, replace(study.settings,
                                                            elements=base.elements),
-                                 model.order, problem, [t for t in trials if t[1]])
+                                 model.order, problem, [t for t in trials if t[1]],
+                                 workers)
     if not ranked:
         return [], None
     best: Location = ranked[0].key
@@ -1675,7 +1680,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
                                  settings.validated_candidates, before, floor)
     report(0.35, "screening the best locations again with their own poles")
     extra, note = reidentified_proposals(study, base, model, problem, scores, chosen,
-                                         settings.screening_intervals)
+                                         settings.screening_intervals, settings.workers)
     chosen += extra
     notes = [note] if note else []
     timings["reidentified_s"] = time.perf_counter() - start

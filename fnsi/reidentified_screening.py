@@ -21,6 +21,7 @@ validates the best location of this screening too (:func:`fnsi.diagnosis.diagnos
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 from fnsi.identification import IdentificationSettings, identify
@@ -52,8 +53,8 @@ class ReidentifiedScore:
 
 def reidentified_scores(measurement: Measurement, settings: IdentificationSettings,
                         order: int, problem: ScreeningProblem,
-                        trials: Sequence[tuple[object, tuple[NonlinearElement, ...]]]
-                        ) -> list[ReidentifiedScore]:
+                        trials: Sequence[tuple[object, tuple[NonlinearElement, ...]]],
+                        workers: int = 1) -> list[ReidentifiedScore]:
     """Identify one model per location at ``order`` and rank them by their output error.
 
     Parameters
@@ -69,6 +70,9 @@ def reidentified_scores(measurement: Measurement, settings: IdentificationSettin
         the models are compared on.
     trials : sequence of (key, elements)
         A location (any key) and the generic elements at it, added to the held ones.
+    workers : int
+        Identifications run at the same time, in threads (most of their work is LAPACK,
+        which releases the interpreter); the result does not depend on it.
 
     Returns
     -------
@@ -78,15 +82,19 @@ def reidentified_scores(measurement: Measurement, settings: IdentificationSettin
     """
     fixed = replace(settings, order=order, max_order=order, refine=False,
                     uncertainty=False)
-    scores = []
-    for key, elements in trials:
+
+    def score(trial: tuple[object, tuple[NonlinearElement, ...]]) -> ReidentifiedScore | None:
+        key, elements = trial
         try:
             model = identify(measurement, replace(fixed, elements=(*settings.elements,
                                                                    *elements)),
                              modal_order=False).model
         except ValueError:
-            continue
-        scores.append(ReidentifiedScore(key, problem.model_cost(model), model))
+            return None
+        return ReidentifiedScore(key, problem.model_cost(model), model)
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        scores = [s for s in pool.map(score, trials) if s is not None]
     return sorted(scores, key=lambda s: s.cost)
 
 
