@@ -849,18 +849,18 @@ def _stabilised(model: StateSpaceModel, decomposition: SubspaceDecomposition, *,
 
 def _model(decomposition: SubspaceDecomposition, order: int,
            by_simulation: SimulationOrder | None, data: Measurement,
-           settings: IdentificationSettings, *, stabilise: bool,
+           settings: IdentificationSettings, *, stabilise: bool, simulated: bool = True,
            ) -> tuple[StateSpaceModel, tuple[str, ...], Comparison | ValueError | None]:
     """The order's model with its notes, repaired where it cannot be simulated
     (:func:`_simulable`; the order search already knows which of its orders needed it),
     unstable poles reflected when ``stabilise``, and its comparison on the estimation
-    record (None for a linear model, which needs none)."""
+    record (None for a linear model, which needs none, or when not ``simulated``)."""
     own = by_simulation is None or not by_simulation.chosen_repaired
     model = decomposition.model(order, own_feedthrough=own)
     notes: tuple[str, ...] = ()
     if stabilise:
         model, notes = _stabilised(model, decomposition, own_feedthrough=own)
-    if not model.elements:
+    if not model.elements or not simulated:
         return model, notes, None
     if not own:
         repair = _repair_note(order, "in the search of the order")
@@ -892,7 +892,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
              reflect_unstable: bool = False,
              refine_iterations: int | None = None,
              order_near: int | None = None,
-             modal_order: bool = True) -> IdentificationResult:
+             modal_order: bool = True,
+             simulated: bool = True) -> IdentificationResult:
     """Identify the underlying linear modes and the nonlinear coefficients by FNSI.
 
     Parameters
@@ -921,6 +922,12 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         simulable), else its ``auto_order`` is None. For trial models judged by their
         simulation errors alone: the choice costs a least-squares fit of B per order it
         visits, a fifth of a 5-DOF chain's diagnosis.
+    simulated : bool
+        False: a nonlinear model at an explicit order is not simulated on the estimation
+        record (no repair of one that cannot be, no offsets of its elements' motion;
+        ``order="auto"`` with ``order_rule="simulation"`` simulates anyway). For models
+        compared by their fit on the band's lines alone (:mod:`fnsi.
+        reidentified_screening`), where that simulation is 85 % of the cost.
 
     Returns
     -------
@@ -959,7 +966,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
     order = _choose_order(settings, diagram) if by_simulation is None else by_simulation.order
     clock.done("stabilisation", 0.7, f"order {order}")
     model, notes, comparison = _model(decomposition, order, by_simulation, data, settings,
-                                      stabilise=settings.order == "auto" or reflect_unstable)
+                                      stabilise=settings.order == "auto" or reflect_unstable,
+                                      simulated=simulated)
     if not settings.refine:   # a refinement finds the offsets of the model it keeps
         model = _with_motion_offsets(model, comparison)
     clock.done("model", 0.85, "B and D estimated")

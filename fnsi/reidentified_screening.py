@@ -88,7 +88,7 @@ def reidentified_scores(measurement: Measurement, settings: IdentificationSettin
         try:
             model = identify(measurement, replace(fixed, elements=(*settings.elements,
                                                                    *elements)),
-                             modal_order=False).model
+                             modal_order=False, simulated=False).model
         except ValueError:
             return None
         return ReidentifiedScore(key, problem.model_cost(model), model)
