@@ -187,6 +187,19 @@ def test_explicit_order_keeps_every_pole_flagged(cubic):
         assert beyond.to_json()["modes"][0]["confirmed"] is None
 
 
+def test_an_unsimulated_model_is_the_simulated_one_without_its_motion_offsets(cubic):
+    # simulated=False skips only the simulation of the estimation record (the model
+    # simulates here, so no repair): the estimate itself is the same, to the last bit
+    _, element, data = cubic
+    settings = IdentificationSettings(band=BAND, order=6, max_order=6,
+                                      elements=(unknown(element),))
+    simulated = identify(data, settings).model
+    unsimulated = identify(data, settings, simulated=False).model
+    for name in ("A", "B", "C", "D"):
+        np.testing.assert_array_equal(getattr(unsimulated, name), getattr(simulated, name))
+    assert simulated.motion_offsets is not None and unsimulated.motion_offsets is None
+
+
 def test_coefficient_weights_follow_the_basis_power(cubic):
     _, element, data = cubic
     settings = IdentificationSettings(band=BAND, block_rows=BLOCK_ROWS, order=6,
