@@ -11,11 +11,7 @@ candidate missing effects in three stages, from cheap to expensive:
    the best with a nonparametric cubic spline (automatic knots, Eq. 19-22) plus the
    velocity functions acting through one force (rank-one B^e), which also gives the
    shape of the force. The reduction of the noise-weighted residual ranks the locations;
-   one set of line-wise products serves them all. The held poles are those of a model
-   without the effect, which may have moved them far: the best-screened locations are
-   therefore also screened with the poles FNSI identifies with the cheap functions there
-   (:mod:`fnsi.reidentified_screening`), and the best laws at the best of those are
-   validated too (:func:`reidentified_proposals`).
+   one set of line-wise products serves them all.
 2. **Compare kinds** at the best locations, and at every connection among the DOFs of
    the locations the screening cannot tell apart (:func:`kind_locations`), once per
    place (locations whose relative motions agree are one, :func:`distinct_locations`),
@@ -33,7 +29,11 @@ candidate missing effects in three stages, from cheap to expensive:
    When none is claimed and a coefficient came out mostly imaginary, the force there is
    a quarter period out of phase with the law fitted, and the best laws of the other
    family at that location (springs for a damper, dampers for a spring) are validated
-   too (:func:`quadrature_proposals`).
+   too (:func:`quadrature_proposals`). When still none is claimed, the held poles may
+   be the reason (a model without the effect, which may have moved them far): the
+   best-screened locations are screened again with the poles FNSI identifies with the
+   cheap functions at each (:mod:`fnsi.reidentified_screening`), and the best laws at
+   the best of those are validated too (:func:`reidentified_proposals`).
 
 A candidate whose model cannot be simulated is repaired, not dropped
 (:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
@@ -873,9 +873,17 @@ def reidentified_proposals(study: Study, base: Revision, model: StateSpaceModel,
     poles FNSI identifies with the generic laws there (:mod:`fnsi.
     reidentified_screening`). When the best is not one of the ``chosen`` proposals'
     places (the same relative motion counts as the same place), its kinds are compared
-    with its own poles held (:func:`compare_kinds`) and the best displacement law and
-    the best velocity law there are validated too: with the poles off, the two families
-    trade places as they do in :func:`quadrature_proposals`.
+    with its own poles held (:func:`compare_kinds`), and the best displacement law and
+    the best velocity law there are proposed: with the poles off, the two families trade
+    places as they do in :func:`quadrature_proposals`.
+
+    The diagnosis follows this place only when the validated proposals claimed nothing.
+    Its ranking is no better a guide than the fixed-pole one (on seed 25 it put a true
+    place first in 8 of 23 cases, the fixed-pole screening in 11), and where the
+    fixed-pole place is right it can be confidently wrong (a 5-DOF chain's cubic spring
+    between x2 and x3, screened first with the poles held: its re-identified best place
+    x4-ground validated at 16.6 % against the truth's 0.72 %); validated every time, its
+    two laws would cost a chain's diagnosis a third more.
 
     Parameters
     ----------
@@ -928,7 +936,8 @@ def reidentified_proposals(study: Study, base: Revision, model: StateSpaceModel,
     note = (f"with the poles identified again at each of the {len(ranked)} best-screened "
             f"locations (FNSI at order {model.order} with x^2, x^3, friction and "
             f"quadratic-damping functions there), {best.phrase} explains the estimation "
-            f"data best: its best displacement and velocity laws were validated too")
+            f"data best: its best displacement and velocity laws were validated too, "
+            f"as no proposal validated before was claimed")
     return proposals, note
 
 
@@ -1519,6 +1528,17 @@ def _validate(study: Study, revision: int, proposal: Proposal, judge: _Judge,
     )
 
 
+def _validate_more(study: Study, revision: int, proposals: Sequence[Proposal],
+                   judge: _Judge, by_location: dict[Location, LocationScore],
+                   workers: int) -> list[Candidate]:
+    """Stage 3 for proposals followed after the first validations claimed nothing (the
+    other law family, :func:`quadrature_proposals`; the re-identified poles' place,
+    :func:`reidentified_proposals`), side by side in ``workers`` threads."""
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(lambda p: _validate(study, revision, p, judge,
+                                                 by_location.get(p.location)), proposals))
+
+
 def _validate_mode(study: Study, revision: int, judge: _Judge) -> Candidate:
     """Stage 3 for one more linear mode (two more states)."""
     base = study.revisions[revision]
@@ -1680,15 +1700,8 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     start = time.perf_counter()
     chosen = validated_proposals(proposals, compared[: settings.top_locations],
                                  settings.validated_candidates, before, floor)
-    report(0.35, "screening the best locations again with their own poles")
-    extra, note = reidentified_proposals(study, base, model, problem, scores, chosen,
-                                         settings.screening_intervals, settings.workers)
-    chosen += extra
-    notes = [note] if note else []
-    timings["reidentified_s"] = time.perf_counter() - start
-    start = time.perf_counter()
     steps = len(chosen) + int(settings.include_missing_mode) + settings.curve_locations
-    curves = []
+    curves, notes = [], []
     if blind_screening(proposals, before, floor):
         notes.append(f"with the revision's poles held no proposal explains more than "
                      f"{100 * proposals[0].reduction:.2g} % of the estimation residual: "
@@ -1744,13 +1757,21 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     # the phase's evidence is followed when no candidate is claimed: a claim stands
     quadrature = (quadrature_proposals(candidates, proposals)
                   if candidates and not candidates[0].convincing else [])
+    wider = replace(elements_judge, candidates=elements_judge.candidates + len(quadrature))
     if quadrature:
-        report(0.98, "validating the other law where a coefficient came out imaginary")
-        wider = replace(elements_judge, candidates=elements_judge.candidates + len(quadrature))
-        with ThreadPoolExecutor(max_workers=settings.workers) as extra:
-            candidates = rank_candidates([*candidates, *extra.map(
-                lambda p: _validate(study, index, p, wider, by_location.get(p.location)),
-                quadrature)])
+        report(0.97, "validating the other law where a coefficient came out imaginary")
+        candidates = rank_candidates([*candidates, *_validate_more(
+            study, index, quadrature, wider, by_location, settings.workers)])
+    if candidates and not candidates[0].convincing:
+        report(0.98, "screening the best locations again with their own poles")
+        again, note = reidentified_proposals(study, base, model, problem, scores,
+                                             [*chosen, *quadrature],
+                                             settings.screening_intervals, settings.workers)
+        if again:
+            notes.append(note)
+            wider = replace(wider, candidates=wider.candidates + len(again))
+            candidates = rank_candidates([*candidates, *_validate_more(
+                study, index, again, wider, by_location, settings.workers)])
     if candidates and not candidates[0].convincing:
         report(0.99, "validating the best two effects together")
         candidates = rank_candidates(claim_pair(study, index, candidates, elements_judge,
@@ -1761,4 +1782,4 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     return Diagnosis(index, before, floor, tuple(candidates), scores, tuple(proposals),
                      tuple(curves),
                      _summary(candidates, before, floor, left, study.settings.refine),
-                     timings, tuple(notes), study.units, left, claim_rule(judge.candidates))
+                     timings, tuple(notes), study.units, left, claim_rule(wider.candidates))

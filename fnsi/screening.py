@@ -328,17 +328,17 @@ class ScreeningProblem:
                 break
         return cost, mu
 
-    def model_cost(self, model: StateSpaceModel) -> float:
-        """Weighted residual energy of a whole model on these data, its own B^e and D^e
-        kept: || S (Y_k - H^e(z_k) E_k) ||^2 summed over the lines (Eq. 8, 18), with E
-        the inputs and the bases of ``model.elements`` on the motion (compare with
-        another model's, not with :meth:`fit`'s costs, whose poles are held and whose
-        input matrices are fitted here)."""
+    def model_residual(self, model: StateSpaceModel) -> np.ndarray:
+        """Weighted residual of a whole model on these data, its own B^e and D^e kept:
+        S (Y_k - H^e(z_k) E_k) on the lines (Eq. 8, 18), with E the inputs and the bases
+        of ``model.elements`` on the motion, shape (R, N, l). The weights make the noise
+        of each term about unit variance, so its squared norm compares with another
+        model's (not with :meth:`fit`'s costs, whose poles are held and whose input
+        matrices are fitted here)."""
         inputs = self._base[:, :, :model.n_inputs]
         extended = np.concatenate([inputs, *map(self.basis_spectra, model.elements)], axis=2)
         response = model.frequency_response(self.frequencies)                 # (N, l, m + s)
-        predicted = np.einsum("klq,rkq->rkl", response, extended) * self.weights
-        return float(np.sum(np.abs(self._y - predicted) ** 2))
+        return self._y - np.einsum("klq,rkq->rkl", response, extended) * self.weights
 
     def reduction(self, cost: float) -> float:
         """Fraction of the base residual a candidate explains, in [0, 1]."""

@@ -699,3 +699,29 @@ def test_the_best_laws_where_reidentified_poles_place_the_effect_are_validated_t
     assert "between x3 and x4 explains the estimation data best" in note
     assert reidentified_proposals(study, base, base.model, problem, scores, added[1:],
                                   8) == ([], None)
+
+
+def test_when_nothing_validated_is_claimed_the_reidentified_place_is_followed(monkeypatch):
+    """The same cubic spring between x3 and x4. With the fixed-pole screening right, its
+    claim stands and the re-identified screening is not consulted (no note); with the
+    screening misled (only a damper at x1 to ground validated, as when the held poles
+    are far off), nothing validated is claimed, and the place FNSI's own poles point to
+    is validated and claimed: the cubic spring between x3 and x4."""
+    study = linear_study(NonlinearElement("polynomial", "x3", "x4", exponent=3.0,
+                                          coefficients=(5e8,)))
+    effort = dataclasses.replace(EFFORT, include_missing_mode=False)
+    place = Location("x3", "x4")
+
+    def followed(diagnosis: Diagnosis) -> bool:
+        return any("with the poles identified again" in note for note in diagnosis.notes)
+
+    right = study.diagnose(settings=effort)
+    assert (right.candidates[0].effect, right.candidates[0].location) == (
+        Effect.CUBIC_STIFFNESS, place) and right.found and not followed(right)
+    damper = Proposal(Effect.QUADRATIC_DAMPING, Location("x1"),
+                      NonlinearElement("quadratic_damping", "x1"), 0.5)
+    monkeypatch.setattr("fnsi.diagnosis.validated_proposals", lambda *args: [damper])
+    misled = study.diagnose(settings=effort)
+    assert followed(misled) and misled.found
+    assert (misled.candidates[0].effect, misled.candidates[0].location) == (
+        Effect.CUBIC_STIFFNESS, place)
