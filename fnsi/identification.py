@@ -204,7 +204,10 @@ class IdentificationSettings:
         and stiffness curves stay FNSI's: the output-error fit does not keep the structure
         of Eq. 17 that the driving-point coefficient relies on. A model that cannot be
         refined (it cannot be simulated, or the problem is too large) is returned as FNSI
-        identified it, with the reason in ``refinement.message``.
+        identified it, with the reason in ``refinement.message``. A model with non-smooth
+        elements at fs below 20 times the band edge is refined, and returned, at the
+        internal rate it is simulated at (``model.fs`` a multiple of the data's:
+        :mod:`fnsi.oversampling`).
     uncertainty : bool
         Standard deviations of the frequencies, damping ratios, mode shapes and
         coefficients from the period-to-period noise, propagated to first order through
@@ -649,10 +652,9 @@ def extended_spectra(data: Measurement, settings: IdentificationSettings,
         xb, vb = period_mean(xm, periods), None if vm is None else period_mean(vm, periods)
     else:
         xb, vb = xm, vm
-    # a model to be refined is identified as refinement simulates it, one basis value per
-    # sample (the oversampled one may not simulate at fs: fnsi.oversampling)
-    oversampling = 1 if settings.refine else oversampling_factor(settings.elements, data.fs,
-                                                                 settings.band[1])
+    # the bases of non-smooth elements at the rate the model is simulated at (and refined
+    # at): their Fourier coefficients without folded harmonics (fnsi.oversampling)
+    oversampling = oversampling_factor(settings.elements, data.fs, settings.band[1])
     elements, g, ranges = _basis_series(settings.elements, data, xb, vb, oversampling)
     E = np.concatenate([u, g], axis=2)
     band = analysis_band(settings, data, y, periods)

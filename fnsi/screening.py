@@ -160,7 +160,8 @@ class ScreeningProblem:
             noise = np.mean(np.abs(y_lines) ** 2, axis=(0, 1)) * 1e-4
         self.weights = 1.0 / np.sqrt(noise)                                    # S, (l,)
         y = y_lines * self.weights                                             # S Y, (R, N, l)
-        z = np.exp(2j * np.pi * self.lines / self.period_length)
+        # the model's own rate: a refined revision may run at a multiple of fs
+        z = np.exp(2j * np.pi * self.frequencies / model.fs)
         w = transfer_rows(model.A, model.C * self.weights[:, None], z)         # S C (z I - A)^-1
         w = w @ whitening(w)                                                   # (N, l, r)
         n = w.shape[2]   # the unknowns of a column of B^e from here on: r whitened states

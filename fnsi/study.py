@@ -827,6 +827,7 @@ class Study:
             key = f"r{r.number}_"
             for name in ("A", "B", "C", "D"):
                 arrays[key + name] = getattr(r.model, name)
+            arrays[key + "fs"] = np.float64(r.model.fs)   # refined: the internal rate
             if r.model.motion_offsets is not None:
                 arrays[key + "motion_offsets"] = r.model.motion_offsets
             if r.errors is not None:
@@ -963,7 +964,8 @@ def _revision_from_json(item: dict, arrays: dict[str, np.ndarray], study: Study)
     names = study.output_names
     inputs = study.settings.inputs or study.estimation.input_names
     model = StateSpaceModel(
-        *(arrays[key + n] for n in ("A", "B", "C", "D")), fs=study.estimation.fs,
+        *(arrays[key + n] for n in ("A", "B", "C", "D")),
+        fs=float(arrays.get(key + "fs", study.estimation.fs)),
         input_names=tuple(inputs), output_names=tuple(names),
         elements=tuple(NonlinearElement.from_json(e) for e in item["model_elements"]),
         motion_offsets=arrays.get(key + "motion_offsets"))

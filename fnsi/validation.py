@@ -86,7 +86,9 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     Parameters
     ----------
     model : StateSpaceModel
-        Identified model; its input and output names select the measured channels.
+        Identified model; its input and output names select the measured channels. Its
+        rate is the measurement's, or a whole multiple of it for a model refined at the
+        internal rate of :mod:`fnsi.oversampling` (simulated at its own rate).
     measurement : Measurement
         Periodic measurement with at least ``discard_periods + 1`` periods.
     discard_periods : int
@@ -95,9 +97,9 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
         Upper edge of the identification band [Hz]; the error spectra reach
         ``ERROR_BAND_FACTOR`` times it (at most fs / 2).
     oversampling : int, optional
-        Internal samples per sample of the simulation; default the model's
+        Internal samples per sample of the model; default the model's
         :func:`fnsi.oversampling.oversampling_factor`. Give 1 for a refined model, which
-        was fitted through the simulation at fs.
+        was fitted through the simulation at its own rate.
     feedthrough : {"implicit", "explicit"}
         Treatment of the nonlinear feed-through (:mod:`fnsi.simulation`): ``"explicit"``
         runs a model whose implicit output equation folds.
@@ -131,7 +133,7 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
     mean = motion_mean(centred if offsets_removed else data, discard_periods)
     periods, motion_offsets = simulate_oversampled(model, u, band_high, oversampling,
                                                    feedthrough, max_periods, corrections,
-                                                   output_mean=mean)
+                                                   output_mean=mean, fs=data.fs)
     simulated = integrate_periodic(periods, data.fs, -INTEGRATIONS[data.quantity])
     simulated = simulated - simulated.mean(axis=1, keepdims=True)
     high = min(data.fs / 2, ERROR_BAND_FACTOR * band_high)
@@ -143,8 +145,8 @@ def compare(model: StateSpaceModel, measurement: Measurement, *, discard_periods
 def compare_identified(result: IdentificationResult, measurement: Measurement,
                        feedthrough: str = "implicit") -> Comparison:
     """:func:`compare` for an identification: its transient periods, band and offset
-    rule, and a refined model simulated at fs, the simulation refinement fitted it through
-    (:mod:`fnsi.oversampling`).
+    rule, and a refined model simulated at its own rate, through the simulation refinement
+    fitted it (the internal rate of :mod:`fnsi.oversampling`, or fs).
 
     Parameters
     ----------

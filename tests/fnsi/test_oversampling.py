@@ -12,8 +12,10 @@ from fnsi.oversampling import (
     finer_model,
     oversampled_bases,
     oversampling_factor,
+    rate_multiple,
     simulate_oversampled,
 )
+from fnsi.refinement import refine
 from fnsi.simulation import simulate_periodic
 from fnsi.statespace import StateSpaceModel
 from fnsi.validation import compare
@@ -47,12 +49,12 @@ def identified(request, chain, simulate_record):
     # whatever the simulation), which is not what this test is about
     result = identify(records[0], IdentificationSettings(band=BAND, order=8, block_rows=8,
                                                          elements=(given,)))
-    return request.param, result, records[1]
+    return request.param, result, records[1], records[0]
 
 
 def test_true_element_validates_within_one_and_a_half_noise_floors(identified):
     """Issue 20's acceptance: a stop and friction at fs = 5 x the band edge."""
-    kind, result, validation = identified
+    kind, result, validation, _ = identified
     errors = compare(result.model, validation, discard_periods=1, band_high=BAND[1]).errors
     at_fs = compare(result.model, validation, discard_periods=1, band_high=BAND[1],
                     oversampling=1).errors
@@ -72,7 +74,7 @@ def test_true_element_validates_within_one_and_a_half_noise_floors(identified):
 
 
 def test_finer_model_keeps_the_poles_and_the_band_response(identified):
-    _, result, _ = identified
+    _, result, _, _ = identified
     model = result.model
     lines = np.arange(101) * FS / PERIOD                 # the simulated lines to 50 Hz
     fine = finer_model(model, 4, lines)
@@ -118,10 +120,43 @@ def test_oversampling_factor_follows_the_elements_and_the_rates():
 
 
 def test_linear_model_is_simulated_at_its_rate(identified):
-    _, result, validation = identified
+    _, result, validation, _ = identified
     linear = StateSpaceModel(result.model.A, result.model.B[:, :1], result.model.C,
                                     result.model.D[:, :1], FS, result.model.input_names,
                                     result.model.output_names)
     u = validation.u[:, -PERIOD:]
     np.testing.assert_array_equal(simulate_oversampled(linear, u, BAND[1])[0],
                                   simulate_periodic(linear, u[0]).y[None])
+
+
+def test_a_model_at_a_multiple_of_the_rate_is_simulated_at_its_own(identified):
+    """The finer model of the oversampled simulation, given as the model itself (as a
+    refined one is kept), simulates the record exactly as the oversampled path does."""
+    _, result, validation, _ = identified
+    model = result.model
+    u = validation.u[:, -PERIOD:]
+    lines = np.arange(101) * FS / PERIOD                 # the lines the path matches: 50 Hz
+    fine = finer_model(model, 4, lines)
+    np.testing.assert_array_equal(simulate_oversampled(fine, u, BAND[1], fs=FS)[0],
+                                  simulate_oversampled(model, u, BAND[1])[0])
+    assert rate_multiple(fine, FS) == 4 and rate_multiple(model, FS) == 1
+    with pytest.raises(ValueError, match="not a whole multiple"):
+        rate_multiple(fine, 1.5 * FS)
+
+
+def test_refinement_at_the_internal_rate_stays_within_the_floor(identified):
+    """Refined through the simulation it is judged by (4 times fs, the rate of
+    non-smooth elements at 5 times the band edge), the model keeps FNSI's accuracy on
+    another realisation; refined at fs it learnt the per-sample simulation's errors and
+    validated at 5-10 times the floor (this chain, :mod:`fnsi.oversampling`)."""
+    kind, result, validation, estimation = identified
+    refined = refine(result.model, estimation, discard_periods=1, band_high=BAND[1])
+    assert refined.model.fs == 4 * FS
+    assert refined.final_percent <= refined.initial_percent
+    errors = compare(refined.model, validation, discard_periods=1, band_high=BAND[1],
+                     oversampling=1).errors
+    ratio = errors.nrmse_percent / errors.noise_floor_percent
+    # 1.3 x: a model error of 0.8 floors, below the 1.1 floors FNSI's own model is
+    # allowed above (stop 1.04-1.41, friction 1.29-1.44 on this seed); refined here the
+    # channels come to 1.05-1.17 (stop) and 1.01-1.05 (friction)
+    assert np.all(ratio < 1.3), (kind, ratio)

@@ -127,6 +127,19 @@ def test_save_and_load_round_trip_without_pickle(study, tmp_path):
     assert loaded.connections == (("x2", "x4"),)
 
 
+def test_a_model_refined_at_the_internal_rate_keeps_its_rate_when_reloaded(study, tmp_path):
+    """A refined model with non-smooth elements lives at a multiple of fs
+    (:mod:`fnsi.refinement`); reloaded at the data's rate it would be simulated four times
+    too slow."""
+    copy = Study.load(study.save(tmp_path / "copy"))
+    revision = copy.revisions[1]
+    copy.revisions[1] = dataclasses.replace(revision, model=dataclasses.replace(
+        revision.model, fs=4 * revision.model.fs))
+    loaded = Study.load(copy.save(tmp_path / "fine"))
+    assert loaded.revisions[1].model.fs == 4 * study.estimation.fs
+    assert loaded.revisions[0].model.fs == study.estimation.fs
+
+
 def test_revisions_record_the_separability_of_their_elements(study, data):
     assert study.revisions[0].separability == ()
     (cubic,) = study.revisions[1].to_json()["separability"]
