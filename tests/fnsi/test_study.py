@@ -324,20 +324,23 @@ def test_a_cubic_spring_measured_in_velocity_or_acceleration_reaches_the_floor(q
     assert revision.nrmse_percent < 1.5 * study.noise_floor_percent
 
 
-def test_a_revision_that_refines_badly_at_its_simulated_order_is_refined_at_its_bases():
+def test_a_revision_that_refines_badly_at_its_simulated_order_is_refined_at_others():
     """Noisy bases (a chain measured in velocity with 2 % noise, unweighted) bias FNSI,
     and the order that simulates the estimation record best is one whose extra states
-    make up for it: there the model cannot be refined (order 54, 20.5 %). At the order of
-    the revision without the element, refinement halves the linear model's error."""
+    make up for it: there the model cannot be refined (order 54, 20.5 %). Refined at the
+    order of the revision without the element (8) it validates at 8.7 %; at the orders
+    above the automatic one at 2.7-4.1 % (the refined estimation errors 2.2-2.3 %), and
+    the lowest of those within the search's tolerance of the best is kept."""
     from fnsi.identification import IdentificationSettings
 
     study = Study.create(*chain_records("velocity", 2.0),
                          IdentificationSettings(band=(3.0, 50.0), weighting=False))
     revision = study.add_revision(add=[dataclasses.replace(CUBIC_X4_X3, coefficients=None)])
-    # measured 8.7 % against the linear revision's 17.2 % (floor 2.5 %)
-    assert revision.nrmse_percent < 0.7 * study.revisions[0].nrmse_percent
-    assert revision.identified_order == study.revisions[0].identified_order
-    assert "refined by its simulation error" in revision.repairs[-1]
+    # measured 4.09 % against the linear revision's 17.2 % (floor 2.5 %); at order 8,
+    # the best before the orders above were tried, 8.7 %
+    assert revision.nrmse_percent < 0.35 * study.revisions[0].nrmse_percent
+    assert revision.identified_order > 54
+    assert "refined at order" in revision.repairs[-1]
 
 
 def test_noise_free_records_are_studied_without_a_noise_floor_to_divide_by():
