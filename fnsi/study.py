@@ -736,11 +736,20 @@ class Study:
             f"refined by its simulation error: FNSI's model missed the {missed} "
             f"({error:.3g} % -> {refined.nrmse_percent:.3g} %)")))
 
-    def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
-                progress: Progress | None, order_near: int | None = None) -> Revision:
-        evaluation = self._refined_if_needed(
+    def kept_evaluation(self, elements: Sequence[NonlinearElement], order: int | str,
+                        progress: Progress | None = None, *, order_near: int | None = None
+                        ) -> Evaluation:
+        """The model a new revision with ``elements`` at ``order`` would keep: identified,
+        validated, and refined (at the orders above too) when it misses the floor
+        (:meth:`_refined_if_needed`); ``order_near`` as in :meth:`evaluate`. The study is
+        not changed."""
+        return self._refined_if_needed(
             self.evaluate(elements, order, progress, order_near=order_near), progress,
             automatic=order == "auto", near=order_near)
+
+    def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
+                progress: Progress | None, order_near: int | None = None) -> Revision:
+        evaluation = self.kept_evaluation(elements, order, progress, order_near=order_near)
         result = evaluation.identification
         revision = Revision(
             number=len(self.revisions), note=note, order=order, elements=elements,

@@ -42,12 +42,15 @@ from fnsi.diagnosis import (
     Proposal,
     _complement,
     _friction_proposal,
+    _Judge,
     _simplest_clearance,
     _summary,
+    _validate,
     added_parameters,
     candidate_locations,
     distinct_locations,
     implausibility,
+    kept_proposals,
     kind_locations,
     quadrature_proposals,
     rank_candidates,
@@ -169,8 +172,12 @@ def test_automatic_order_trials_that_miss_the_floor_are_refined_as_the_study_wou
     elements = [c for c in diagnosis.candidates if c.element is not None]
     refined = 0
     for c in elements:
-        trial = study.evaluate([dataclasses.replace(c.element, coefficients=None)], "auto",
-                               trial=True, order_near=base.identified_order)
+        # as proposed: a refined trial's element carries its refined gaps
+        proposed = next(p.element for p in diagnosis.proposals
+                        if (p.effect, p.location, p.element.side) == (c.effect, c.location,
+                                                                      c.element.side))
+        trial = study.evaluate([proposed], "auto", trial=True,
+                               order_near=base.identified_order)
         if study.misses_floor(trial.nrmse_percent):
             trial = study.better_refined(trial, trial=True, iterations=TRIAL_STEPS)
             refined += any("refined by its simulation error" in r for r in trial.repairs)
@@ -725,3 +732,39 @@ def test_when_nothing_validated_is_claimed_the_reidentified_place_is_followed(mo
     assert followed(misled) and misled.found
     assert (misled.candidates[0].effect, misled.candidates[0].location) == (
         Effect.CUBIC_STIFFNESS, place)
+
+
+def test_kept_trials_are_the_best_element_candidates_that_missed_the_floor():
+    """Two at most, by validation error; never one more mode, nor a model that failed,
+    nor a trial already within the study's refinement threshold."""
+    study = SimpleNamespace(misses_floor=lambda nrmse: nrmse > 0.6)   # floor 0.3 %
+    element = NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(1e8,))
+
+    def candidate(nrmse, effect=Effect.CUBIC_STIFFNESS, failure=None):
+        return dataclasses.replace(_candidate(effect, nrmse), failure=failure,
+                                   element=None if effect is Effect.MISSING_MODE else element)
+
+    at_threshold, best, second, third = (candidate(e) for e in (0.5, 7.0, 8.0, 9.0))
+    others = [candidate(1.0, Effect.MISSING_MODE), candidate(2.0, failure="diverged")]
+    kept = kept_proposals(study, [third, at_threshold, second, *others, best])
+    assert [c for c, _ in kept] == [best, second]
+    proposal = kept[0][1]
+    assert proposal.element.coefficients is None and proposal.location == Location("x3")
+
+
+def test_a_kept_trial_is_the_revision_the_study_would_add():
+    """Identified, validated and refined as the study would add the element (with the
+    orders above the automatic one when refined, :meth:`fnsi.study.Study.kept_evaluation`),
+    so that its claim judges what the user then gets."""
+    truth = NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(2e8,))
+    study = linear_study(truth, quantity="velocity",
+                         settings=dataclasses.replace(SETTINGS, order="auto"))
+    base = study.revisions[0]
+    judge = _Judge(base.nrmse_percent, study.noise_floor_percent, study.validation_spectra,
+                   base.simulated, 1, kept=True)
+    given = dataclasses.replace(truth, coefficients=None)
+    kept = _validate(study, 0, Proposal(Effect.CUBIC_STIFFNESS, Location("x3"), given, 0.5),
+                     judge, None)
+    revision = study.add_revision(add=[given])
+    assert kept.validation_nrmse_percent == revision.nrmse_percent
+    assert kept.order == revision.identified_order
