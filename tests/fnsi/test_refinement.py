@@ -290,3 +290,19 @@ def test_levenberg_marquardt_stops_at_the_step_limit():
                                 tolerance=1e-2)
     assert found.iterations == 2 and found.message == "2 steps taken"
     assert 0.5 * np.sum(residual(found.x) ** 2) == pytest.approx(found.cost)
+
+
+def test_a_model_too_large_for_the_work_budget_takes_fewer_steps(records, monkeypatch):
+    """Each step's normal equations cost the cube of the order (fnsi.refinement.step_work):
+    beyond MAX_REFINEMENT_WORK a refinement stops after fewer steps, at least
+    STALL_WINDOW, and its message says why. Here the budget is cut to one step's work."""
+    import fnsi.refinement
+
+    model = identify(records[0], _settings()).model
+    full = refine(model, records[0], discard_periods=1, band_high=BAND[1])
+    assert full.iterations > fnsi.refinement.STALL_WINDOW     # 7 steps measured
+    monkeypatch.setattr(fnsi.refinement, "MAX_REFINEMENT_WORK", 1.0)
+    cut = refine(model, records[0], discard_periods=1, band_high=BAND[1])
+    assert cut.iterations == fnsi.refinement.STALL_WINDOW
+    assert "the most this model's size allows" in cut.message
+    assert cut.final_percent >= full.final_percent
