@@ -39,9 +39,10 @@ Jacobian. In periodic steady state the outputs are exactly Y = H(z) E with E = [
 H = C (zI - A)^-1 B^e + D^e, so every derivative is a resolvent product on the lines,
 except for the closed loop through the bases: a change of theta changes the relative
 displacements z_e(t) (and velocities, which the simulator takes by a central difference
-inside its implicit step), hence G. That loop is a linear time-varying recursion, run
-for all parameters at once in a compiled kernel (``_closed_loop``); its open-loop forcing
-comes from the frequency domain. The minimisation takes Levenberg-Marquardt steps on
+inside its implicit step), hence G. That loop is a linear recursion, periodic in the steady
+state: its periodic response is solved from its monodromy matrix, for all parameters at
+once in a compiled kernel (``_closed_loop``); its open-loop forcing comes from the
+frequency domain. The minimisation takes Levenberg-Marquardt steps on
 J^T J (:func:`levenberg_marquardt`).
 """
 
@@ -344,10 +345,112 @@ class _Layout:
 
 
 # -- closed-loop sensitivity --------------------------------------------------------------------
+@numba.njit(cache=True, nogil=True)
+def _loop_period(a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain, forcing, direct, column,
+                 half_fs, xi, previous, w_previous, out, record):
+    """One period of the closed-loop recursion of one parameter (:func:`_closed_loop`).
+
+    ``forcing`` (N, nz) is the parameter's open-loop change of the relative motions, or
+    (0, nz) for none; ``column`` its column of ``direct`` (N, s, gaps), -1 for none. The
+    state xi (n,), the previous step's xi and w (used with velocity bases) are updated in
+    place to the period's end; with ``record``, ``out`` (N, s) receives w at every
+    sample."""
+    N = M_inv.shape[0]
+    nz = M.shape[0]
+    E = PC.shape[0]
+    n = Bg.shape[0]
+    s = Bg.shape[1]
+    forced = forcing.shape[0] > 0
+    known = np.empty(nz)
+    Z = np.empty(nz)
+    w = np.empty(s)
+    new = np.empty(n)
+    for k in range(N):
+        for e in range(E):
+            total = forcing[k, e] if forced else 0.0
+            for i in range(n):
+                total += PC[e, i] * xi[i]
+            known[e] = total
+        for e in range(nz - E):
+            total = 0.0
+            for i in range(n):
+                total += PCA[e, i] * xi[i] - PC[e, i] * previous[i]
+            for j in range(s):
+                total -= PDg[e, j] * w_previous[j]
+            known[E + e] = (forcing[k, E + e] if forced else 0.0) + half_fs * total
+        if column >= 0:
+            for e in range(nz):
+                for j in range(s):
+                    known[e] += M[e, j] * direct[k, j, column]
+        for e in range(nz):
+            total = 0.0
+            for f in range(nz):
+                total += M_inv[k, e, f] * known[f]
+            Z[e] = total
+        for j in range(s):
+            total = direct[k, j, column] if column >= 0 else 0.0
+            for e in range(nz):
+                total += gain[k, j, e] * Z[e]
+            w[j] = total
+            if record:
+                out[k, j] = total
+        i = 0
+        for blk in range(sizes.shape[0]):
+            if sizes[blk] == 2:
+                new[i] = a[blk] * xi[i] + b[blk] * xi[i + 1]
+                new[i + 1] = -b[blk] * xi[i] + a[blk] * xi[i + 1]
+                i += 2
+            else:
+                new[i] = a[blk] * xi[i]
+                i += 1
+        for i in range(n):
+            previous[i] = xi[i]
+            total = new[i]
+            for j in range(s):
+                total += Bg[i, j] * w[j]
+            xi[i] = total
+        for j in range(s):
+            w_previous[j] = w[j]
+
+
 @numba.njit(cache=True, parallel=True)
-def _closed_loop(a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain, forcing, direct,
-                 direct_index, half_fs, warmup):
-    """Changes w (samples, s, p) of the bases through the closed loop, per parameter.
+def _loop_runs(a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain, forcing, forcing_index,
+               direct, direct_index, half_fs, states, periods, out, record):
+    """``periods`` periods of the closed loop for each row of ``states`` (runs, d), in
+    place: its start [xi; xi before; w before] (d = 2n + s with velocity bases, else n)
+    becomes its end. Run r is forced by ``forcing[forcing_index[r]]`` (forcing (p, N,
+    nz)) and column ``direct_index[r]`` of ``direct`` (-1: none); with ``record`` its
+    last period's w goes to ``out[r]`` (runs, N, s). Runs are independent: one thread
+    each."""
+    n = Bg.shape[0]
+    s = Bg.shape[1]
+    d = states.shape[1]
+    none = np.zeros((0, forcing.shape[2]))
+    for r in numba.prange(states.shape[0]):
+        xi = states[r, :n].copy()
+        previous = states[r, n:2 * n].copy() if d > n else np.zeros(n)
+        w_previous = states[r, 2 * n:].copy() if d > n else np.zeros(s)
+        f = forcing[forcing_index[r]] if forcing_index[r] >= 0 else none
+        target = out[r] if record else out[0]
+        for period in range(periods):
+            _loop_period(a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain, f, direct,
+                         direct_index[r], half_fs, xi, previous, w_previous, target,
+                         record and period == periods - 1)
+        states[r, :n] = xi
+        if d > n:
+            states[r, n:2 * n] = previous
+            states[r, 2 * n:] = w_previous
+
+
+MONODROMY_COND = 1e10
+"""Largest condition number of I - Phi (Phi the closed loop's monodromy matrix) from
+which :func:`_closed_loop` takes the periodic start; above it a Floquet multiplier is
+near 1 (a neutrally stable orbit) and the recursion is warmed up instead."""
+
+
+def _closed_loop(loop: tuple, forcing: np.ndarray, direct: np.ndarray,
+                 direct_index: np.ndarray, half_fs: float, warmup: int) -> np.ndarray:
+    """Changes w (N, s, p) of the bases through the closed loop, per parameter.
 
     The E elements' relative motions Z = [dz] (displacement bases) or [dz; dv] (with
     velocity bases, nz = 2E) at sample k of the periodic steady state are the open-loop
@@ -359,75 +462,56 @@ def _closed_loop(a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain, forcing, direct,
 
     (the central difference of the simulator, :mod:`fnsi.simulation`), so that
     Z = M_inv(k) (known part), M_inv(k) = (I - M G'(k))^-1 with M the simulator's
-    sensitivity of z to the bases and ``gain`` = G' (N, s, nz). A parameter of the
+    sensitivity of z to the bases and G'(k) = ``gain`` (N, s, nz). A parameter of the
     bases themselves (a clearance gap, column ``direct_index[p]`` >= 0 of ``direct``,
     (N, s, gaps)) changes them by h at fixed motion: w = G' Z + h,
-    Z = M_inv (known + M h). A = blockdiag([[a, b], [-b, a]] or [a]), PC = P C_loop,
-    PCA = PC A, PDg = P D^e_g. The recursion starts
-    ``warmup`` samples before the period so that its start-up transient has died out.
-    Parameters are independent: one thread each.
+    Z = M_inv (known + M h). ``loop`` = (a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain):
+    A = blockdiag([[a, b], [-b, a]] or [a]), PC = P C_loop, PCA = PC A, PDg = P D^e_g.
+
+    The recursion is linear and N-periodic, x_end = Phi x_start + s_p in its state x
+    (d of them), so its periodic response starts from x = (I - Phi)^-1 s_p: Phi from d
+    unforced periods, s_p from one forced period from rest, then the recorded one, d + 2p
+    periods in all. From rest the transient of the slowest pole must die out instead
+    (``warmup`` samples: p (warmup / N + 1) periods, 8 on a 1 %-damped chain and up to
+    21 for the lightly damped modes of high orders); whichever costs fewer periods is
+    run.
     """
-    N, nz, P = forcing.shape
-    E = PC.shape[0]
-    n = Bg.shape[0]
-    s = Bg.shape[1]
-    out = np.empty((N, s, P))
-    for p in numba.prange(P):
-        xi = np.zeros(n)
-        previous = np.zeros(n)
-        w_previous = np.zeros(s)
-        known = np.empty(nz)
-        Z = np.empty(nz)
-        w = np.empty(s)
-        new = np.empty(n)
-        for step in range(warmup + N):
-            k = (step - warmup) % N
-            for e in range(E):
-                total = forcing[k, e, p]
-                for i in range(n):
-                    total += PC[e, i] * xi[i]
-                known[e] = total
-            for e in range(nz - E):
-                total = 0.0
-                for i in range(n):
-                    total += PCA[e, i] * xi[i] - PC[e, i] * previous[i]
-                for j in range(s):
-                    total -= PDg[e, j] * w_previous[j]
-                known[E + e] = forcing[k, E + e, p] + half_fs * total
-            column = direct_index[p]
-            if column >= 0:
-                for e in range(nz):
-                    for j in range(s):
-                        known[e] += M[e, j] * direct[k, j, column]
-            for e in range(nz):
-                total = 0.0
-                for f in range(nz):
-                    total += M_inv[k, e, f] * known[f]
-                Z[e] = total
-            for j in range(s):
-                total = direct[k, j, column] if column >= 0 else 0.0
-                for e in range(nz):
-                    total += gain[k, j, e] * Z[e]
-                w[j] = total
-                out[k, j, p] = total
-            i = 0
-            for blk in range(sizes.shape[0]):
-                if sizes[blk] == 2:
-                    new[i] = a[blk] * xi[i] + b[blk] * xi[i + 1]
-                    new[i + 1] = -b[blk] * xi[i] + a[blk] * xi[i + 1]
-                    i += 2
-                else:
-                    new[i] = a[blk] * xi[i]
-                    i += 1
-            for i in range(n):
-                previous[i] = xi[i]
-                total = new[i]
-                for j in range(s):
-                    total += Bg[i, j] * w[j]
-                xi[i] = total
-            for j in range(s):
-                w_previous[j] = w[j]
-    return out
+    N, nz, p = forcing.shape
+    E, n, s = loop[4].shape[0], loop[3].shape[0], loop[3].shape[1]
+    d = n if nz == E else 2 * n + s
+    forcing = np.ascontiguousarray(np.moveaxis(forcing, 2, 0))            # (p, N, nz)
+    out = np.empty((p, N, s))
+    index = np.arange(p)
+    warm = -(-warmup // N)
+    if d + 2 * p < p * (warm + 1):
+        start = _periodic_start(loop, forcing, direct, direct_index, half_fs, d)
+        if start is not None:
+            _loop_runs(*loop, forcing, index, direct, direct_index, half_fs, start, 1,
+                       out, True)
+            return np.moveaxis(out, 0, 2)
+    _loop_runs(*loop, forcing, index, direct, direct_index, half_fs, np.zeros((p, d)),
+               warm + 1, out, True)
+    return np.moveaxis(out, 0, 2)
+
+
+def _periodic_start(loop: tuple, forcing: np.ndarray, direct: np.ndarray,
+                    direct_index: np.ndarray, half_fs: float, d: int) -> np.ndarray | None:
+    """Start (p, d) of every parameter's periodic response of the closed loop
+    (:func:`_closed_loop`), None when I - Phi is too ill-conditioned
+    (:data:`MONODROMY_COND`)."""
+    p = forcing.shape[0]
+    scratch = np.empty((1, *loop[8].shape[:1], loop[3].shape[1]))
+    phi = np.eye(d)                           # row j: the period's end from the jth unit
+    unforced = np.full(d, -1, dtype=np.int64)
+    _loop_runs(*loop, forcing, unforced, direct, unforced, half_fs, phi, 1, scratch, False)
+    particular = np.zeros((p, d))
+    _loop_runs(*loop, forcing, np.arange(p), direct, direct_index, half_fs, particular, 1,
+               scratch, False)
+    system = np.eye(d) - phi.T
+    if not np.linalg.cond(system) <= MONODROMY_COND:
+        return None
+    start = np.linalg.solve(system, particular.T).T
+    return start if np.all(np.isfinite(start)) else None
 
 
 # -- the problem --------------------------------------------------------------------------------
@@ -622,12 +706,10 @@ class _Problem:
             if self.velocity:
                 forcing_t = np.concatenate(
                     [forcing_t, self._velocity_forcing(state, forcing_t, g)], axis=1)
-            dg = _closed_loop(a, b, sizes, np.ascontiguousarray(Bg), np.ascontiguousarray(PC),
-                              np.ascontiguousarray(PC @ A), np.ascontiguousarray(PDg),
-                              np.ascontiguousarray(M), *self._loop_gain(gx, gv, M),
-                              np.ascontiguousarray(forcing_t),
-                              self._gap_slopes(state, state["motion"][r]), direct_index,
-                              half_fs, warmup)                            # (N, s, p)
+            loop = (a, b, sizes, *map(np.ascontiguousarray, (Bg, PC, PC @ A, PDg, M)),
+                    *self._loop_gain(gx, gv, M))
+            dg = _closed_loop(loop, forcing_t, self._gap_slopes(state, state["motion"][r]),
+                              direct_index, half_fs, warmup)              # (N, s, p)
             out.append(np.fft.rfft(dg, axis=0)[self.lines])
         return np.stack(out)
 

@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 import fnsi.identification
 from fnsi.identification import IdentificationSettings, identify
@@ -14,6 +15,8 @@ from fnsi.nonlinear import NonlinearElement
 from fnsi.refinement import (
     Refinement,
     _averaged_record,
+    _closed_loop,
+    _loop_runs,
     _Problem,
     levenberg_marquardt,
     real_modal_form,
@@ -216,6 +219,42 @@ def test_velocity_dependent_elements_are_refined(chain, simulate_record):
     floor = after.overall_noise_floor_percent
     assert before.overall_percent > 1.25 * floor
     assert after.overall_percent < 1.05 * floor
+
+
+@pytest.mark.parametrize("velocity", [False, True])
+def test_the_closed_loop_starts_at_its_periodic_response(velocity):
+    """A lightly damped loop (pole radius 0.999: its transient from rest decays by 1e-8
+    in 72 periods of 256 samples) started from its monodromy matrix gives the periodic
+    response that 400 periods from rest reach (0.999^102400 = 4e-45 left of the
+    start-up), to rounding: relative 1e-9 allows the monodromy solve's condition number
+    (about 1e3 here) times the sums' rounding."""
+    rng = np.random.default_rng(1)
+    N, n, s, E, p, gaps = 256, 4, 3, 2, 5, 1
+    nz = 2 * E if velocity else E
+    radius, angles = 0.999, np.array([0.3, 1.1])
+    a, b = radius * np.cos(angles), radius * np.sin(angles)
+    Bg, PC, PDg = (0.1 * rng.standard_normal(shape) for shape in ((n, s), (E, n), (E, s)))
+    M = 0.1 * rng.standard_normal((nz, s))
+    gain = 0.2 * rng.standard_normal((N, s, nz))
+    M_inv = np.linalg.inv(np.eye(nz) - M @ gain)
+    A = scipy.linalg.block_diag(*([[ai, bi], [-bi, ai]] for ai, bi in zip(a, b, strict=True)))
+    loop = (a, b, np.array([2, 2]), Bg, PC, PC @ A, PDg, M, M_inv, gain)
+    forcing = rng.standard_normal((N, nz, p))
+    direct = rng.standard_normal((N, s, gaps))
+    direct_index = np.array([-1, -1, 0, -1, -1])
+    warmup = int(np.ceil(np.log(1e-8) / np.log(radius)))
+    periodic = _closed_loop(loop, forcing, direct, direct_index, 1.0, warmup)
+    d = 2 * n + s if velocity else n
+    from_rest = np.empty((p, N, s))
+    _loop_runs(*loop, np.ascontiguousarray(np.moveaxis(forcing, 2, 0)), np.arange(p),
+               direct, direct_index, 1.0, np.zeros((p, d)), 400, from_rest, True)
+    from_rest = np.moveaxis(from_rest, 0, 2)
+    assert np.abs(periodic - from_rest).max() < 1e-9 * np.abs(from_rest).max()
+    # and not what the warm-up the loop's slowest pole asks for misses by a period
+    short = np.empty((p, N, s))
+    _loop_runs(*loop, np.ascontiguousarray(np.moveaxis(forcing, 2, 0)), np.arange(p),
+               direct, direct_index, 1.0, np.zeros((p, d)), 2, short, True)
+    assert np.abs(np.moveaxis(short, 0, 2) - from_rest).max() > 1e-3 * np.abs(from_rest).max()
 
 
 def test_a_model_that_cannot_be_simulated_is_not_refined(records):
