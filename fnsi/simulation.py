@@ -43,6 +43,7 @@ g[k] through B^e_nl, v joins the unknowns z of the Newton step.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -133,13 +134,19 @@ def _solve_step(z, z_hat, M, kinds, values, value_offsets, basis_offsets, g, gx,
     while iterations < max_iterations:
         _element_bases(z, kinds, values, value_offsets, basis_offsets, g, gx, gv)
         _product(M, g, step, False)
+        # reductions written out: an array temporary per Newton iteration (np.abs) cost
+        # more than the rest of a step of a 10-state model with one element
         worst = 0.0
         squared = 0.0
+        scale_hat = 0.0
+        scale_step = 0.0
         for i in range(n_z):
             residual[i] = z[i] - z_hat[i] - step[i]
             worst = max(worst, abs(residual[i]))
             squared += residual[i] * residual[i]
-        if worst <= tolerance * (np.max(np.abs(z_hat)) + np.max(np.abs(step))):
+            scale_hat = max(scale_hat, abs(z_hat[i]))
+            scale_step = max(scale_step, abs(step[i]))
+        if worst <= tolerance * (scale_hat + scale_step):
             return True
         if not squared < last and monotone and halvings < MAX_HALVINGS:
             length *= 0.5
@@ -164,11 +171,13 @@ def _solve_step(z, z_hat, M, kinds, values, value_offsets, basis_offsets, g, gx,
         # softening law whose solution vanished is reported, not continued on another
         # branch
         monotone = sign > 0
+        finite = True
         for i in range(n_z):
             z_trial[i] = z[i]
             newton[i] = residual[i]
             z[i] -= newton[i]
-        if not np.all(np.isfinite(z)):
+            finite = finite and math.isfinite(z[i])
+        if not finite:
             return False
         last = squared
         length = 1.0
