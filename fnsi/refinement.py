@@ -52,6 +52,7 @@ import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -442,13 +443,29 @@ def _loop_runs(a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain, forcing, forcing_i
             states[r, 2 * n:] = w_previous
 
 
+class _Loop(NamedTuple):
+    """The closed loop's matrices, in :func:`_loop_runs`'s argument order
+    (:func:`_closed_loop`)."""
+
+    a: np.ndarray          # (blocks,) real parts of A's blocks
+    b: np.ndarray          # (blocks,) imaginary parts (0 for a real pole)
+    sizes: np.ndarray      # (blocks,) 1 or 2
+    Bg: np.ndarray         # (n, s)
+    PC: np.ndarray         # (E, n)
+    PCA: np.ndarray        # (E, n)
+    PDg: np.ndarray        # (E, s)
+    M: np.ndarray          # (nz, s)
+    M_inv: np.ndarray      # (N, nz, nz)
+    gain: np.ndarray       # (N, s, nz)
+
+
 MONODROMY_COND = 1e10
 """Largest condition number of I - Phi (Phi the closed loop's monodromy matrix) from
 which :func:`_closed_loop` takes the periodic start; above it a Floquet multiplier is
 near 1 (a neutrally stable orbit) and the recursion is warmed up instead."""
 
 
-def _closed_loop(loop: tuple, forcing: np.ndarray, direct: np.ndarray,
+def _closed_loop(loop: _Loop, forcing: np.ndarray, direct: np.ndarray,
                  direct_index: np.ndarray, half_fs: float, warmup: int) -> np.ndarray:
     """Changes w (N, s, p) of the bases through the closed loop, per parameter.
 
@@ -465,7 +482,7 @@ def _closed_loop(loop: tuple, forcing: np.ndarray, direct: np.ndarray,
     sensitivity of z to the bases and G'(k) = ``gain`` (N, s, nz). A parameter of the
     bases themselves (a clearance gap, column ``direct_index[p]`` >= 0 of ``direct``,
     (N, s, gaps)) changes them by h at fixed motion: w = G' Z + h,
-    Z = M_inv (known + M h). ``loop`` = (a, b, sizes, Bg, PC, PCA, PDg, M, M_inv, gain):
+    Z = M_inv (known + M h). In ``loop``:
     A = blockdiag([[a, b], [-b, a]] or [a]), PC = P C_loop, PCA = PC A, PDg = P D^e_g.
 
     The recursion is linear and N-periodic, x_end = Phi x_start + s_p in its state x
@@ -477,8 +494,8 @@ def _closed_loop(loop: tuple, forcing: np.ndarray, direct: np.ndarray,
     run.
     """
     N, nz, p = forcing.shape
-    E, n, s = loop[4].shape[0], loop[3].shape[0], loop[3].shape[1]
-    d = n if nz == E else 2 * n + s
+    n, s = loop.Bg.shape
+    d = n if nz == loop.PC.shape[0] else 2 * n + s
     forcing = np.ascontiguousarray(np.moveaxis(forcing, 2, 0))            # (p, N, nz)
     out = np.empty((p, N, s))
     index = np.arange(p)
@@ -494,13 +511,13 @@ def _closed_loop(loop: tuple, forcing: np.ndarray, direct: np.ndarray,
     return np.moveaxis(out, 0, 2)
 
 
-def _periodic_start(loop: tuple, forcing: np.ndarray, direct: np.ndarray,
+def _periodic_start(loop: _Loop, forcing: np.ndarray, direct: np.ndarray,
                     direct_index: np.ndarray, half_fs: float, d: int) -> np.ndarray | None:
     """Start (p, d) of every parameter's periodic response of the closed loop
     (:func:`_closed_loop`), None when I - Phi is too ill-conditioned
     (:data:`MONODROMY_COND`)."""
-    p = forcing.shape[0]
-    scratch = np.empty((1, *loop[8].shape[:1], loop[3].shape[1]))
+    p, N, _ = forcing.shape
+    scratch = np.empty((1, N, loop.Bg.shape[1]))              # not written: nothing recorded
     phi = np.eye(d)                           # row j: the period's end from the jth unit
     unforced = np.full(d, -1, dtype=np.int64)
     _loop_runs(*loop, forcing, unforced, direct, unforced, half_fs, phi, 1, scratch, False)
@@ -706,8 +723,8 @@ class _Problem:
             if self.velocity:
                 forcing_t = np.concatenate(
                     [forcing_t, self._velocity_forcing(state, forcing_t, g)], axis=1)
-            loop = (a, b, sizes, *map(np.ascontiguousarray, (Bg, PC, PC @ A, PDg, M)),
-                    *self._loop_gain(gx, gv, M))
+            loop = _Loop(a, b, sizes, *map(np.ascontiguousarray, (Bg, PC, PC @ A, PDg, M)),
+                         *self._loop_gain(gx, gv, M))
             dg = _closed_loop(loop, forcing_t, self._gap_slopes(state, state["motion"][r]),
                               direct_index, half_fs, warmup)              # (N, s, p)
             out.append(np.fft.rfft(dg, axis=0)[self.lines])
