@@ -140,7 +140,10 @@ def test_study_create_diagnose_revise_show(records, tmp_path, capsys):
     assert code == 2
     assert "'x9'" in err and "not an output" in err
     code, out, _ = run(capsys, "study", "show", folder)
-    assert len(out.strip().splitlines()) == 4  # header + 2 revisions + offsets: nothing lost
+    # nothing lost: the two revisions' rows (each may be followed by its repairs)
+    rows = [line for line in out.splitlines() if re.match(r"\s+\d+\s+\d+\s", line)]
+    assert [row.split()[0] for row in rows] == ["0", "1"], out
+    assert "offsets of the validation data" in out
 
 
 def test_study_create_refuses_records_of_different_set_ups(records, tmp_path, capsys):
