@@ -1144,6 +1144,14 @@ def _distinct(a: float, b: float) -> tuple[str, str]:
     return words
 
 
+def _contact(gn: float, gp: float, length: str) -> str:
+    """A clearance's contact displacements, "-g- and +g+ <length>" (a side without stop,
+    inf, left out)."""
+    sides = [f"{sign}{_number(gap)}" for sign, gap in (("-", gn), ("+", gp))
+             if math.isfinite(gap)]
+    return f"{' and '.join(sides)} {length}"
+
+
 def _kind_words(proposal: Proposal, element: NonlinearElement, units: ModelUnits) -> str:
     """Physical description of an element with its identified numbers, in ``units``."""
     where, length, unit = proposal.location.phrase, units.length, units.coefficient(element)
@@ -1159,8 +1167,7 @@ def _kind_words(proposal: Proposal, element: NonlinearElement, units: ModelUnits
                     f"on the other side within the measured motion){added}")
         if math.isclose(gn, gp):
             return f"a clearance of about ±{_number(gp)} {length} {where}{added}"
-        return (f"an asymmetric clearance {where}, contact at -{_number(gn)} and "
-                f"+{_number(gp)} {length}{added}")
+        return f"an asymmetric clearance {where}, contact at {_contact(gn, gp, length)}{added}"
     if proposal.effect is Effect.CUBIC_STIFFNESS:
         trend = "" if mu is None else ("hardening " if mu > 0 else "softening ")
         return f"a {trend}cubic spring {where}" + ("" if mu is None else
@@ -1271,10 +1278,8 @@ def _refined_gap_words(element: NonlinearElement, evaluation: Evaluation, length
     found = evaluation.identified(element)
     if element.kind != "clearance" or found is None or found[1].gaps == element.gaps:
         return ""
-    sides = [f"{sign}{_number(gap)}" for sign, gap in zip("-+", found[1].gaps, strict=True)
-             if math.isfinite(gap)]
     return (f"; its model refined by the simulation error puts contact at "
-            f"{' and '.join(sides)} {length} (the revision refines them again)")
+            f"{_contact(*found[1].gaps, length)} (the revision refines them again)")
 
 
 def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore | None,
