@@ -58,6 +58,7 @@ from fnsi.diagnosis import (
     quadrature_proposals,
     rank_candidates,
     reidentified_proposals,
+    richer_proposals,
     screen_locations,
     validated_proposals,
 )
@@ -176,10 +177,12 @@ def test_automatic_order_trials_that_miss_the_floor_are_refined_as_the_study_wou
     elements = [c for c in diagnosis.candidates if c.element is not None]
     refined = 0
     for c in elements:
-        # as proposed (the candidate's element carries identified coefficients)
-        proposed = next(p.element for p in diagnosis.proposals
-                        if (p.effect, p.location, p.element.side) == (c.effect, c.location,
-                                                                      c.element.side))
+        # as proposed (the candidate's element carries identified coefficients and the
+        # gaps it was identified from; a clearance may come in two forms)
+        forms = [f for p in diagnosis.proposals for f in (p, p.richer) if f is not None]
+        proposed = next(p.element for p in forms
+                        if (p.effect, p.location) == (c.effect, c.location)
+                        and p.element == dataclasses.replace(c.element, coefficients=None))
         trial = study.evaluate([proposed], "auto", trial=True,
                                order_near=base.identified_order)
         if study.misses_floor(trial.nrmse_percent):
@@ -515,6 +518,31 @@ def test_a_blind_screening_has_every_kind_at_the_best_locations_validated():
     assert validated_proposals(proposals, top, 2, before=1.02, floor=1.0) == proposals[:2]
 
 
+def test_the_richer_clearance_form_of_the_best_candidate_is_validated_too():
+    """A clearance proposed in its simpler form (here a one-sided stop, beside a cheaper
+    asymmetric form) has its richer form validated when it is the best candidate, once;
+    not when another candidate is best."""
+    where = Location("x0", "x1")
+    asymmetric = Proposal(Effect.CLEARANCE, where, NonlinearElement(
+        "clearance", "x0", "x1", gap_negative=1e-3, gap_positive=2e-3), 0.75)
+    stop = Proposal(Effect.CLEARANCE, where, NonlinearElement(
+        "clearance", "x0", "x1", gap_positive=2e-3, side="positive"), 0.72,
+        richer=asymmetric)
+    cubic = Proposal(Effect.CUBIC_STIFFNESS, where,
+                     NonlinearElement("polynomial", "x0", "x1", exponent=3.0), 0.6)
+
+    def candidate(proposal: Proposal, nrmse: float) -> Candidate:
+        identified = dataclasses.replace(proposal.element, coefficients=(1e3,))
+        return dataclasses.replace(_given_candidate(proposal.effect, nrmse),
+                                   location=where, element=identified)
+
+    validated = [stop, cubic]
+    assert richer_proposals([candidate(stop, 5.4), candidate(cubic, 6.0)],
+                            validated) == [asymmetric]
+    assert richer_proposals([candidate(cubic, 5.0), candidate(stop, 5.4)], validated) == []
+    assert richer_proposals([candidate(stop, 5.4)], [*validated, asymmetric]) == []
+
+
 def test_claim_rule():
     # significant (z above the critical value) and worth its one parameter
     assert claim_test(10.0, 1.0, 0.5, 1, 50.0, 5).passed
@@ -572,12 +600,15 @@ def test_an_asymmetric_clearance_must_pay_for_its_second_gap():
                 (asymmetric_cost, 1.2, 1.0)]
 
     where = Location("x1", "x2")
-    # one gap more must lower the residual by 1 - 0.9^2 = 19 % (the claim rule's penalty)
-    assert _simplest_clearance(where, options(0.82 * 60.0)) == (60.0, math.inf, 1.0)
-    assert _simplest_clearance(where, options(0.80 * 60.0)) == (48.0, 1.2, 1.0)
+    # one gap more must lower the residual by 1 - 0.9^2 = 19 % (the claim rule's penalty);
+    # the cheaper richer form short of it is returned second, for validation
+    assert _simplest_clearance(where, options(0.82 * 60.0)) == (
+        (60.0, math.inf, 1.0), (0.82 * 60.0, 1.2, 1.0))
+    assert _simplest_clearance(where, options(0.80 * 60.0)) == ((48.0, 1.2, 1.0),) * 2
+    assert _simplest_clearance(where, options(61.0)) == ((60.0, math.inf, 1.0),) * 2
     # among forms with as many parameters the lower residual wins
     assert _simplest_clearance(where, [*options(80.0)[:1], (99.0, 1.0, math.inf)]) == (
-        99.0, 1.0, math.inf)
+        (99.0, 1.0, math.inf),) * 2
 
 
 def test_softening_and_asymmetry_are_plausible_either_sign():
