@@ -45,6 +45,7 @@ from fnsi.diagnosis import (
     _complement,
     _friction_proposal,
     _Judge,
+    _law,
     _refined_gap_words,
     _simplest_clearance,
     _summary,
@@ -60,6 +61,7 @@ from fnsi.diagnosis import (
     reidentified_proposals,
     richer_proposals,
     screen_locations,
+    unvisited_proposals,
     validated_proposals,
 )
 from fnsi.diagnosis import _candidate as _judged_candidate
@@ -468,6 +470,33 @@ def test_kinds_are_compared_at_every_connection_among_near_tied_dofs():
     assert kind_locations([_scored("w", None, 0.0)], top=3)[0].location == Location("w")
 
 
+
+def test_unvisited_places_get_their_best_law_validated(monkeypatch):
+    """Before nothing is said, the best law at the next best-screened places where no
+    trial went (the same motion is the same place; a held law is not proposed again)."""
+    t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+    w, b, c = np.sin(t), 0.5 * np.sin(t + 1.0), 0.3 * np.cos(2.0 * t)
+    still = 0.003 * np.cos(3.0 * t)
+    x = np.stack([w, b, c, still], axis=-1)[None]
+    problem = SimpleNamespace(motion=MotionRecord(x, np.zeros_like(x), ("w", "b", "c", "p")))
+
+    def law(effect: Effect, location: Location, reduction: float) -> Proposal:
+        kind = "quadratic_damping" if effect is Effect.QUADRATIC_DAMPING else "polynomial"
+        return Proposal(effect, location, NonlinearElement(
+            kind, location.dof, location.ref, **({"exponent": 3.0} if kind == "polynomial"
+                                                 else {})), reduction)
+
+    monkeypatch.setattr("fnsi.diagnosis.compare_kinds", lambda problem, score: [
+        law(Effect.CUBIC_STIFFNESS, score.location, 0.5),
+        law(Effect.QUADRATIC_DAMPING, score.location, 0.4)])
+    scores = [_scored("w", "p", 0.9), _scored("w", None, 0.9), _scored("b", None, 0.8),
+              _scored("c", None, 0.7), _scored("b", "c", 0.6)]
+    validated = [law(Effect.CUBIC_STIFFNESS, Location("w"), 0.5)]
+    held = {_law(NonlinearElement("polynomial", "b", exponent=3.0))}
+    fresh = unvisited_proposals(problem, scores, validated, held, 2)
+    assert [(p.effect, p.location) for p in fresh] == [
+        (Effect.QUADRATIC_DAMPING, Location("b")), (Effect.CUBIC_STIFFNESS, Location("c"))]
+    assert len(unvisited_proposals(problem, scores, validated, held, 5)) == 3
 
 def test_kinds_are_compared_where_either_screening_puts_a_location_first():
     """The spline (one force column) and the first score (a column per law) rank
