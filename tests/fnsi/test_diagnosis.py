@@ -41,6 +41,7 @@ from fnsi.diagnosis import (
     LocationScore,
     Proposal,
     Treatment,
+    _clearance_forms,
     _coefficient_quality,
     _complement,
     _friction_proposal,
@@ -53,13 +54,13 @@ from fnsi.diagnosis import (
     added_parameters,
     candidate_locations,
     distinct_locations,
+    form_proposals,
     implausibility,
     kept_proposals,
     kind_locations,
     quadrature_proposals,
     rank_candidates,
     reidentified_proposals,
-    richer_proposals,
     screen_locations,
     unvisited_proposals,
     validated_proposals,
@@ -181,7 +182,7 @@ def test_automatic_order_trials_that_miss_the_floor_are_refined_as_the_study_wou
     for c in elements:
         # as proposed (the candidate's element carries identified coefficients and the
         # gaps it was identified from; a clearance may come in two forms)
-        forms = [f for p in diagnosis.proposals for f in (p, p.richer) if f is not None]
+        forms = [f for p in diagnosis.proposals for f in (p, *p.forms)]
         proposed = next(p.element for p in forms
                         if (p.effect, p.location) == (c.effect, c.location)
                         and p.element == dataclasses.replace(c.element, coefficients=None))
@@ -547,16 +548,16 @@ def test_a_blind_screening_has_every_kind_at_the_best_locations_validated():
     assert validated_proposals(proposals, top, 2, before=1.02, floor=1.0) == proposals[:2]
 
 
-def test_the_richer_clearance_form_of_the_best_candidate_is_validated_too():
-    """A clearance proposed in its simpler form (here a one-sided stop, beside a cheaper
-    asymmetric form) has its richer form validated when it is the best candidate, once;
-    not when another candidate is best."""
+def test_the_other_clearance_forms_of_the_best_candidate_are_validated_too():
+    """A clearance proposed in one form (here a one-sided stop, beside an asymmetric
+    form that fit alike) has its other forms validated when it is the best candidate,
+    once; not when another candidate is best."""
     where = Location("x0", "x1")
     asymmetric = Proposal(Effect.CLEARANCE, where, NonlinearElement(
         "clearance", "x0", "x1", gap_negative=1e-3, gap_positive=2e-3), 0.75)
     stop = Proposal(Effect.CLEARANCE, where, NonlinearElement(
         "clearance", "x0", "x1", gap_positive=2e-3, side="positive"), 0.72,
-        richer=asymmetric)
+        forms=(asymmetric,))
     cubic = Proposal(Effect.CUBIC_STIFFNESS, where,
                      NonlinearElement("polynomial", "x0", "x1", exponent=3.0), 0.6)
 
@@ -566,10 +567,10 @@ def test_the_richer_clearance_form_of_the_best_candidate_is_validated_too():
                                    location=where, element=identified)
 
     validated = [stop, cubic]
-    assert richer_proposals([candidate(stop, 5.4), candidate(cubic, 6.0)],
-                            validated) == [asymmetric]
-    assert richer_proposals([candidate(cubic, 5.0), candidate(stop, 5.4)], validated) == []
-    assert richer_proposals([candidate(stop, 5.4)], [*validated, asymmetric]) == []
+    assert form_proposals([candidate(stop, 5.4), candidate(cubic, 6.0)],
+                          validated) == [asymmetric]
+    assert form_proposals([candidate(cubic, 5.0), candidate(stop, 5.4)], validated) == []
+    assert form_proposals([candidate(stop, 5.4)], [*validated, asymmetric]) == []
 
 
 def test_claim_rule():
@@ -629,15 +630,22 @@ def test_an_asymmetric_clearance_must_pay_for_its_second_gap():
                 (asymmetric_cost, 1.2, 1.0)]
 
     where = Location("x1", "x2")
-    # one gap more must lower the residual by 1 - 0.9^2 = 19 % (the claim rule's penalty);
-    # the cheaper richer form short of it is returned second, for validation
-    assert _simplest_clearance(where, options(0.82 * 60.0)) == (
-        (60.0, math.inf, 1.0), (0.82 * 60.0, 1.2, 1.0))
-    assert _simplest_clearance(where, options(0.80 * 60.0)) == ((48.0, 1.2, 1.0),) * 2
-    assert _simplest_clearance(where, options(61.0)) == ((60.0, math.inf, 1.0),) * 2
+    # one gap more must lower the residual by 1 - 0.9^2 = 19 % (the claim rule's penalty)
+    assert _simplest_clearance(where, options(0.82 * 60.0)) == (60.0, math.inf, 1.0)
+    assert _simplest_clearance(where, options(0.80 * 60.0)) == (48.0, 1.2, 1.0)
     # among forms with as many parameters the lower residual wins
     assert _simplest_clearance(where, [*options(80.0)[:1], (99.0, 1.0, math.inf)]) == (
-        (99.0, 1.0, math.inf),) * 2
+        99.0, 1.0, math.inf)
+
+
+def test_clearance_forms_that_fit_alike_are_kept_for_validation():
+    """The forms whose fixed-pole residual neither undercuts by what one parameter must
+    buy (19 %) are kept beside the chosen one, lowest residual first."""
+    chosen = (60.0, math.inf, 1.0)
+    options = [(100.0, 1.0, 1.0), chosen, (70.0, 1.0, math.inf), (50.0, 1.2, 1.0)]
+    # 60 / 0.81 = 74.07: the other stop (70) and the asymmetric form (50 >= 48.6) alike
+    assert _clearance_forms(chosen, options) == [(50.0, 1.2, 1.0), (70.0, 1.0, math.inf)]
+    assert _clearance_forms(chosen, [chosen, (75.0, 1.0, 1.0), (48.0, 1.2, 1.0)]) == []
 
 
 def test_softening_and_asymmetry_are_plausible_either_sign():
