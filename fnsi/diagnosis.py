@@ -36,7 +36,7 @@ candidate missing effects in three stages, from cheap to expensive:
    the best of those are validated too (:func:`reidentified_proposals`). When still none
    is claimed, the two element candidates that validate best are identified again as
    the study would keep them once added, fully refined and at the orders above too
-   (:func:`kept_proposals`).
+   (:func:`kept_trials`).
 
 A candidate whose model cannot be simulated is repaired, not dropped
 (:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
@@ -652,6 +652,15 @@ def _same_motion(a: np.ndarray, b: np.ndarray) -> bool:
     return min(np.linalg.norm(a - b), np.linalg.norm(a + b)) <= scale
 
 
+def _visited(problem: ScreeningProblem, location: Location,
+             proposals: Sequence[Proposal]) -> bool:
+    """Whether a proposal acts on the relative motion of ``location`` (:func:`_same_motion`:
+    the same place for the fixed-pole fit)."""
+    x, _ = problem.motion.relative(location.dof, location.ref)
+    return any(_same_motion(x, problem.motion.relative(p.location.dof, p.location.ref)[0])
+               for p in proposals)
+
+
 def _flat_zone(x: np.ndarray, force: np.ndarray) -> tuple[float, float]:
     """Where a restoring-force curve leaves zero slope on each side: (g-, g+) [length].
 
@@ -952,12 +961,8 @@ def unvisited_proposals(problem: ScreeningProblem, scores: Sequence[LocationScor
     count : int
         Most locations.
     """
-    def motion(location: Location) -> np.ndarray:
-        return problem.motion.relative(location.dof, location.ref)[0]
-
-    visited = [motion(p.location) for p in validated]
     fresh = [s for s in distinct_locations(problem, scores)
-             if not any(_same_motion(motion(s.location), x) for x in visited)][:count]
+             if not _visited(problem, s.location, validated)][:count]
     best = [next((p for p in compare_kinds(problem, s) if _law(p.element) not in held), None)
             for s in fresh]
     return [p for p in best if p is not None]
@@ -1029,9 +1034,7 @@ def reidentified_proposals(study: Study, base: Revision, model: StateSpaceModel,
     if not ranked:
         return [], None
     best: Location = ranked[0].key
-    x, _ = problem.motion.relative(best.dof, best.ref)
-    if any(_same_motion(x, problem.motion.relative(p.location.dof, p.location.ref)[0])
-           for p in chosen):
+    if _visited(problem, best, chosen):
         return [], None
     own = ScreeningProblem(study.identified_estimation,
                            held_part(ranked[0].model, len(base.elements)),
@@ -1821,6 +1824,47 @@ def _judged(study: Study, revision: int, trials: Sequence[_Trial], judge: _Judge
     return rank_candidates(candidates if mode is None else [*candidates, mode])
 
 
+@dataclass
+class _FollowUp:
+    """A diagnosis's trials so far and the judge they answer to. Each follow-up stage
+    validates more proposals (one more test each, for the family-wise level) and every
+    trial is judged again against the references known then (:func:`_judged`)."""
+
+    study: Study
+    revision: int
+    judge: _Judge
+    by_location: dict[Location, LocationScore]
+    workers: int
+    mode: Candidate | None
+    trials: list[_Trial]
+
+    def unranked(self) -> list[Candidate]:
+        """Each trial judged, in the trials' order, without the missing-mode candidate."""
+        return [_candidate(self.study, self.revision, t, self.judge) for t in self.trials]
+
+    def candidates(self) -> list[Candidate]:
+        """Every candidate so far, best first."""
+        return _judged(self.study, self.revision, self.trials, self.judge, self.mode)
+
+    def add(self, proposals: Sequence[Proposal]) -> list[Candidate]:
+        """Validate ``proposals`` too; every candidate so far, best first."""
+        self.judge = replace(self.judge, candidates=self.judge.candidates + len(proposals))
+        self.trials += _trials(self.study, self.revision, proposals, self.judge,
+                               self.by_location, self.workers)
+        return self.candidates()
+
+    def keep(self, positions: Sequence[int]) -> list[Candidate]:
+        """Identify the trials at ``positions`` again as the study would keep them
+        (:func:`kept_trials`); every candidate so far, best first."""
+        proposals = [self.trials[i].proposal for i in positions]
+        self.judge = replace(self.judge, candidates=self.judge.candidates + len(proposals))
+        again = _trials(self.study, self.revision, proposals, replace(self.judge, kept=True),
+                        self.by_location, self.workers)
+        for position, trial in zip(positions, again, strict=True):
+            self.trials[position] = trial
+        return self.candidates()
+
+
 def _validate_mode(study: Study, revision: int, judge: _Judge) -> Candidate:
     """Stage 3 for one more linear mode (two more states)."""
     base = study.revisions[revision]
@@ -1863,15 +1907,15 @@ def _unexplained(study: Study, index: int) -> Unexplained | None:
 
 KEPT_TRIALS = 2
 """Element candidates identified as the study would keep them when no trial is claimed
-(:func:`kept_proposals`)."""
+(:func:`kept_trials`)."""
 
 
-def kept_proposals(study: Study, candidates: Sequence[Candidate]
-                   ) -> list[tuple[Candidate, Proposal]]:
-    """The :data:`KEPT_TRIALS` element candidates that validate best among those whose
-    trial missed the study's refinement threshold, each with the proposal that identifies
-    it again as the study would keep it once added (:meth:`fnsi.study.Study.
-    kept_evaluation`: fully refined, at the orders above the automatic one too).
+def kept_trials(study: Study, candidates: Sequence[Candidate]) -> list[int]:
+    """Positions in ``candidates`` of the :data:`KEPT_TRIALS` element candidates that
+    validate best among those whose trial missed the study's refinement threshold: their
+    trials' proposals are identified again as the study would keep them once added
+    (:meth:`fnsi.study.Study.kept_evaluation`: fully refined, at the orders above the
+    automatic one too), with their other forms (:attr:`Proposal.forms`) still to follow.
 
     A trial is refined in :data:`TRIAL_STEPS` steps at the order whose FNSI model
     simulates it best; the study, once the element is added, refines it to convergence
@@ -1881,11 +1925,9 @@ def kept_proposals(study: Study, candidates: Sequence[Candidate]
     claimed and the revision misses the floor by the study's refinement threshold (there
     is something to find): each costs a few refinements.
     """
-    missed = [c for c in candidates if c.element is not None and c.failure is None
-              and study.misses_floor(c.validation_nrmse_percent)]
-    best = sorted(missed, key=lambda c: c.validation_nrmse_percent)[:KEPT_TRIALS]
-    return [(c, Proposal(c.effect, c.location, replace(c.element, coefficients=None),
-                         c.screening_reduction or 0.0)) for c in best]
+    missed = [i for i, c in enumerate(candidates) if c.element is not None
+              and c.failure is None and study.misses_floor(c.validation_nrmse_percent)]
+    return sorted(missed, key=lambda i: candidates[i].validation_nrmse_percent)[:KEPT_TRIALS]
 
 
 PAIR_TRIALS = 2
@@ -2070,13 +2112,13 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
                                        settings.workers)
     candidates = _judged(study, index, trials, elements_judge, mode)
     # the phase's evidence is followed when no candidate is claimed: a claim stands
+    follow = _FollowUp(study, index, elements_judge, by_location, settings.workers, mode,
+                       trials)
     quadrature = (quadrature_proposals(candidates, proposals)
                   if candidates and not candidates[0].convincing else [])
-    wider = replace(elements_judge, candidates=elements_judge.candidates + len(quadrature))
     if quadrature:
         report(0.97, "validating the other law where a coefficient came out imaginary")
-        trials += _trials(study, index, quadrature, wider, by_location, settings.workers)
-        candidates = _judged(study, index, trials, wider, mode)
+        candidates = follow.add(quadrature)
     if candidates and not candidates[0].convincing:
         report(0.98, "screening the best locations again with their own poles")
         again, note = reidentified_proposals(study, base, model, problem, scores,
@@ -2084,38 +2126,25 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
                                              settings.screening_intervals, settings.workers)
         if again:
             notes.append(note)
-            wider = replace(wider, candidates=wider.candidates + len(again))
-            trials += _trials(study, index, again, wider, by_location, settings.workers)
-            candidates = _judged(study, index, trials, wider, mode)
+            candidates = follow.add(again)
     if candidates and not candidates[0].convincing and study.misses_floor(before):
-        unranked = [_candidate(study, index, t, wider) for t in trials]
-        kept = kept_proposals(study, unranked)
+        kept = kept_trials(study, follow.unranked())
         if kept:
             report(0.985, "identifying the best candidates as the study would keep them")
-            wider = replace(wider, candidates=wider.candidates + len(kept))
-            at = {id(c): position for position, c in enumerate(unranked)}
-            for (c, _), trial in zip(kept, _trials(
-                    study, index, [p for _, p in kept], replace(wider, kept=True),
-                    by_location, settings.workers), strict=True):
-                trials[at[id(c)]] = trial
-            candidates = _judged(study, index, trials, wider, mode)
+            candidates = follow.keep(kept)
     if candidates and not candidates[0].convincing and study.misses_floor(before):
-        fresh = unvisited_proposals(problem, scores, [t.proposal for t in trials], held,
-                                    settings.validated_candidates)
+        fresh = unvisited_proposals(problem, scores, [t.proposal for t in follow.trials],
+                                    held, settings.validated_candidates)
         if fresh:
             report(0.986, "validating the best law at the next best-screened locations")
             notes.append(f"nothing was claimed at the places validated first: the best law "
                          f"at each of the {len(fresh)} next best-screened locations was "
                          f"validated too")
-            wider = replace(wider, candidates=wider.candidates + len(fresh))
-            trials += _trials(study, index, fresh, wider, by_location, settings.workers)
-            candidates = _judged(study, index, trials, wider, mode)
-    forms = form_proposals(candidates, [t.proposal for t in trials])
+            candidates = follow.add(fresh)
+    forms = form_proposals(candidates, [t.proposal for t in follow.trials])
     if forms:
         report(0.988, "validating the best clearance's other forms")
-        wider = replace(wider, candidates=wider.candidates + len(forms))
-        trials += _trials(study, index, forms, wider, by_location, settings.workers)
-        candidates = _judged(study, index, trials, wider, mode)
+        candidates = follow.add(forms)
     if candidates and not candidates[0].convincing:
         report(0.99, "validating the best two effects together")
         candidates = rank_candidates(claim_pair(study, index, candidates, elements_judge,
@@ -2128,4 +2157,5 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     return Diagnosis(index, before, floor, tuple(candidates), scores, tuple(proposals),
                      tuple(curves),
                      _summary(candidates, before, floor, left, study.settings.refine),
-                     timings, tuple(notes), study.units, left, claim_rule(wider.candidates))
+                     timings, tuple(notes), study.units, left,
+                     claim_rule(follow.judge.candidates))

@@ -44,6 +44,7 @@ from fnsi.diagnosis import (
     _clearance_forms,
     _coefficient_quality,
     _complement,
+    _FollowUp,
     _friction_proposal,
     _Judge,
     _law,
@@ -56,7 +57,7 @@ from fnsi.diagnosis import (
     distinct_locations,
     form_proposals,
     implausibility,
-    kept_proposals,
+    kept_trials,
     kind_locations,
     quadrature_proposals,
     rank_candidates,
@@ -573,6 +574,39 @@ def test_the_other_clearance_forms_of_the_best_candidate_are_validated_too():
     assert form_proposals([candidate(stop, 5.4)], [*validated, asymmetric]) == []
 
 
+def test_a_kept_trial_keeps_its_proposal_and_its_other_forms(monkeypatch):
+    """The kept stage identifies a trial's own proposal again, with the clearance forms
+    it carries, so that the forms stage can follow a clearance claimed only once kept;
+    it widens the family-wise count by its trials and asks for the kept treatment."""
+    where = Location("x0", "x1")
+    asymmetric = Proposal(Effect.CLEARANCE, where, NonlinearElement(
+        "clearance", "x0", "x1", gap_negative=1e-3, gap_positive=2e-3), 0.75)
+    stop = Proposal(Effect.CLEARANCE, where, NonlinearElement(
+        "clearance", "x0", "x1", gap_positive=2e-3, side="positive"), 0.72,
+        forms=(asymmetric,), detail={"spline_flat": (-1e-3, 2e-3)})
+    cubic = Proposal(Effect.CUBIC_STIFFNESS, Location("x2"),
+                     NonlinearElement("polynomial", "x2", exponent=3.0), 0.6)
+    asked = []
+
+    def trials(study, revision, proposals, judge, by_location, workers):
+        asked.append((list(proposals), judge))
+        return [SimpleNamespace(proposal=p, kept=judge.kept) for p in proposals]
+
+    monkeypatch.setattr("fnsi.diagnosis._trials", trials)
+    monkeypatch.setattr("fnsi.diagnosis._judged", lambda s, r, t, j, m: list(t))
+    judge = _Judge(10.0, 0.5, None, None, 3)
+    first = [SimpleNamespace(proposal=p, kept=False) for p in (cubic, stop)]
+    follow = _FollowUp(None, 0, judge, {}, 1, None, list(first))
+    again = follow.keep([1])
+    assert asked[0][0] == [stop] and asked[0][1].kept
+    assert again[1].proposal is stop and again[1].kept and again[0] is first[0]
+    assert follow.judge.candidates == 4 and not follow.judge.kept
+    assert form_proposals([dataclasses.replace(
+        _given_candidate(Effect.CLEARANCE, 4.0), location=where,
+        element=dataclasses.replace(stop.element, coefficients=(1e3,)))],
+        [t.proposal for t in follow.trials]) == [asymmetric]
+
+
 def test_claim_rule():
     # significant (z above the critical value) and worth its one parameter
     assert claim_test(10.0, 1.0, 0.5, 1, 50.0, 5).passed
@@ -846,10 +880,7 @@ def test_kept_trials_are_the_best_element_candidates_that_missed_the_floor():
 
     at_threshold, best, second, third = (candidate(e) for e in (0.5, 7.0, 8.0, 9.0))
     others = [candidate(1.0, Effect.MISSING_MODE), candidate(2.0, failure="diverged")]
-    kept = kept_proposals(study, [third, at_threshold, second, *others, best])
-    assert [c for c, _ in kept] == [best, second]
-    proposal = kept[0][1]
-    assert proposal.element.coefficients is None and proposal.location == Location("x3")
+    assert kept_trials(study, [third, at_threshold, second, *others, best]) == [5, 2]
 
 
 def test_a_candidate_carries_the_gaps_its_trial_was_identified_from():
