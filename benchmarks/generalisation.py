@@ -88,7 +88,8 @@ samples per period, 3 periods) with 0, 1 or 2 hidden nonlinear elements at measu
 each sized so that the true underlying linear structure misses the noise-free estimation
 and validation responses by 3-60 % NRMSE (the smaller of the two set to a drawn target, so
 that the effect acts in both records); simulated to periodic steady state by scipy's DOP853 (not the
-library's simulator); validation record: another random-phase realisation. The library
+library's simulator) and sampled through an ideal anti-aliasing filter, as a lab's
+acquisition does; validation record: another random-phase realisation. The library
 runs the study loop as a user would with its defaults (`Study.create` with only the band,
 order `"auto"`; `diagnose`; the top candidate added when the diagnosis finds one; a
 second round), every answer recorded before the truth is read. Kind classes: cubic

@@ -8,6 +8,18 @@ of its lines, no interpolation). Integration starts from the linear steady state
 runs period after period until the state at the start of two consecutive periods agrees
 within a tolerance: the record is then periodic, as the identification assumes.
 
+The sensors are sampled through an ideal anti-aliasing filter, as a test lab's
+acquisition system samples them (a sigma-delta converter's decimation filter is flat
+to about 0.45 fs and stops what lies above fs / 2): the periodic response is evaluated
+:data:`ANTI_ALIAS_OVERSAMPLING` times finer from the integrator's dense output, and its
+DFT lines at and above fs / 2 are removed (:func:`low_pass`). A contact's force has a
+kink, so its response reaches far above fs / 2; sampled without a filter, those
+harmonics fold onto the lines below it, where no band-limited model can follow them. On
+seed 28 case 3 of the hidden benchmark (a stiff clearance to ground, fs 6.6 times the
+band edge) the true elements validated at 1.02 % against a floor of 0.105 % with the
+sensors sampled directly, and the library's own simulation of the same structure,
+sampled directly, gave the same 1.02 % where filtered it gave 0.285 % (floor 0.143 %).
+
 Arrays follow :mod:`.synthesis`: one period ``(realisations, samples, channels)``.
 """
 
@@ -19,6 +31,29 @@ import scipy.linalg
 
 from benchmarks.generalisation import synthesis
 from benchmarks.generalisation.structures import GROUND, Structure
+
+ANTI_ALIAS_OVERSAMPLING = 16
+"""Instants per sample at which the response is evaluated before the ideal low-pass
+(:func:`low_pass`): what lies above 8 fs and folds below fs / 2 then is, for a contact
+(its acceleration's spectrum falls as 1 / f^2), about 1 / 256 of the harmonics the
+filter removes."""
+
+
+def low_pass(fine: np.ndarray, samples: int) -> np.ndarray:
+    """One period sampled ``fine.shape[1] / samples`` times finer, through an ideal
+    low-pass below the new fs / 2: its DFT lines under half the new rate (the Nyquist line
+    too goes: it cannot be told from its alias), ``samples`` instants.
+
+    Parameters
+    ----------
+    fine : ndarray, shape (fine samples, channels)
+        The period at the finer instants.
+    samples : int
+        Samples per period after the filter.
+    """
+    factor = fine.shape[0] // samples
+    spectrum = np.fft.rfft(fine, axis=0)[: (samples + 1) // 2]
+    return np.fft.irfft(spectrum / factor, n=samples, axis=0)
 
 
 def restoring(structure: Structure, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
@@ -69,7 +104,8 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
     Returns
     -------
     u, y : ndarray
-        Forces and responses of one period, as :func:`.synthesis.steady_state` returns them.
+        Forces and responses of one period, as :func:`.synthesis.steady_state` returns them
+        (the responses through the ideal anti-aliasing filter, module docstring).
     periods : int
         Largest number of periods integrated over the realisations.
 
@@ -133,7 +169,9 @@ def periodic_steady_state(structure: Structure, spectrum: np.ndarray, samples: i
                                  "state keeps changing from period to period)")
             state = end
         worst = max(worst, periods)
-        y[r] = _output(structure, solution.y, rhs, t, quantity)[:, sensors]
+        fine = np.arange(samples * ANTI_ALIAS_OVERSAMPLING) / (ANTI_ALIAS_OVERSAMPLING * fs)
+        response = _output(structure, solution.sol(fine), rhs, fine, quantity)
+        y[r] = low_pass(response[:, sensors], samples)
     return u, y, worst
 
 
@@ -152,7 +190,8 @@ def _linear_spectra(structure: Structure, spectrum: np.ndarray, samples: int,
 
 def _output(structure: Structure, states: np.ndarray, rhs, t: np.ndarray,
             quantity: str) -> np.ndarray:
-    """Displacement, velocity or acceleration of every DOF at the samples, (samples, n)."""
+    """Displacement, velocity or acceleration of every DOF at the instants ``t`` of
+    ``states`` (2n, instants), shape (instants, n)."""
     n = structure.n_dofs
     if quantity == "displacement":
         return states[:n].T
