@@ -2110,10 +2110,10 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     report(0.96, "identifying the revision at the candidates' orders")
     elements_judge.identify_references(study, index, [t.reference for t in trials],
                                        settings.workers)
-    candidates = _judged(study, index, trials, elements_judge, mode)
-    # the phase's evidence is followed when no candidate is claimed: a claim stands
     follow = _FollowUp(study, index, elements_judge, by_location, settings.workers, mode,
                        trials)
+    candidates = follow.candidates()
+    # the phase's evidence is followed when no candidate is claimed: a claim stands
     quadrature = (quadrature_proposals(candidates, proposals)
                   if candidates and not candidates[0].convincing else [])
     if quadrature:

@@ -40,7 +40,7 @@ filter removes."""
 
 
 def low_pass(fine: np.ndarray, samples: int) -> np.ndarray:
-    """One period sampled ``fine.shape[1] / samples`` times finer, through an ideal
+    """One period sampled ``fine.shape[0] / samples`` times finer, through an ideal
     low-pass below the new fs / 2: its DFT lines under half the new rate (the Nyquist line
     too goes: it cannot be told from its alias), ``samples`` instants.
 
