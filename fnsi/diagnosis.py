@@ -1217,13 +1217,14 @@ def _coefficient_quality(evaluation: Evaluation, element: NonlinearElement
                          ) -> tuple[NonlinearElement, float | None, float | None]:
     """The element with its identified coefficients and their quality criteria.
 
-    The element is the model's (spline knots resolved) with the clearance gaps it was
-    identified from, not those a refinement moved them to: adding it then repeats the
-    trial's identification, so the trial's error bounds what the revision reaches.
-    With the refined gap, a one-sided stop whose trial validated at 4.31 % took another
-    order in the study's search, whose model needed its poles reflected and did not
-    refine: 25.4 % (seed 27 case 0 of the hidden benchmark; its start, 4.49 %).
-    The refined gaps are in the candidate's words (:func:`_refined_gap_words`).
+    The element is the model's (spline knots resolved) with the clearance gaps or the
+    friction width it was identified from, not those a refinement moved them to: adding
+    it then repeats the trial's identification, so the trial's error bounds what the
+    revision reaches. With the refined gap, a one-sided stop whose trial validated at
+    4.31 % took another order in the study's search, whose model needed its poles
+    reflected and did not refine: 25.4 % (seed 27 case 0 of the hidden benchmark; its
+    start, 4.49 %). The refined values are in the candidate's words
+    (:func:`_refined_shape_words`).
     """
     quality = evaluation.coefficient_quality(element)
     if quality is None:
@@ -1231,7 +1232,8 @@ def _coefficient_quality(evaluation: Evaluation, element: NonlinearElement
     mean, log_ratio, flatness = quality
     identified = evaluation.identified(element)[1]   # present: it has coefficients
     return (replace(identified, coefficients=tuple(mean), gap=element.gap,
-                    gap_negative=element.gap_negative, gap_positive=element.gap_positive),
+                    gap_negative=element.gap_negative, gap_positive=element.gap_positive,
+                    width=element.width),
             log_ratio, flatness)
 
 
@@ -1377,15 +1379,22 @@ def _repair_words(repairs: Sequence[str]) -> str:
     return "" if not repairs else f" (its model needed repair to run: {'; '.join(repairs)})"
 
 
-def _refined_gap_words(element: NonlinearElement, evaluation: Evaluation, length: str
-                       ) -> str:
-    """Where the candidate's refined model put the clearance's contact, when refinement
-    moved the gaps it was identified from ("" otherwise)."""
+def _refined_shape_words(element: NonlinearElement, evaluation: Evaluation, length: str
+                         ) -> str:
+    """Where the candidate's refined model put the clearance's contact, or the friction's
+    smoothing width, when refinement moved what it was identified from ("" otherwise)."""
     found = evaluation.identified(element)
-    if element.kind != "clearance" or found is None or found[1].gaps == element.gaps:
+    if found is None:
         return ""
-    return (f"; its model refined by the simulation error puts contact at "
-            f"{_contact(*found[1].gaps, length)} (the revision refines them again)")
+    refined = found[1]
+    if element.kind == "clearance" and refined.gaps != element.gaps:
+        return (f"; its model refined by the simulation error puts contact at "
+                f"{_contact(*refined.gaps, length)} (the revision refines them again)")
+    if element.kind == "coulomb_friction" and refined.width != element.width:
+        return (f"; its model refined by the simulation error smooths the friction over "
+                f"{_number(refined.width)} {length}/s instead of {_number(element.width)} "
+                f"(the revision refines it again)")
+    return ""
 
 
 def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore | None,
@@ -1406,7 +1415,7 @@ def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore
                                         f"{proposal.location.phrase}")
     return (f"{_kind_words(proposal, element, units)}: {effect}{floor_words}"
             f"{_repair_words(evaluation.repairs)}"
-            f"{_refined_gap_words(element, evaluation, units.length)}"
+            f"{_refined_shape_words(element, evaluation, units.length)}"
             f"{_shape_words(proposal, score, units.length)}"
             f"{evidence}{_verdict_words(test)}{doubt}")
 

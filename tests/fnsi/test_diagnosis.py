@@ -48,7 +48,7 @@ from fnsi.diagnosis import (
     _friction_proposal,
     _Judge,
     _law,
-    _refined_gap_words,
+    _refined_shape_words,
     _simplest_clearance,
     _summary,
     _trial,
@@ -883,6 +883,13 @@ def test_kept_trials_are_the_best_element_candidates_that_missed_the_floor():
     assert kept_trials(study, [third, at_threshold, second, *others, best]) == [5, 2]
 
 
+def _identified_as(proposed: NonlinearElement, refined: NonlinearElement) -> SimpleNamespace:
+    """An evaluation whose model holds ``refined`` where ``proposed`` was proposed."""
+    return SimpleNamespace(
+        identified=lambda e: (0, refined) if e.kind == proposed.kind else None,
+        coefficient_quality=lambda e: (np.array([9.8e3]), 3.0, 1.5))
+
+
 def test_a_candidate_carries_the_gaps_its_trial_was_identified_from():
     """Adding the candidate then repeats its trial's identification (the revision refines
     the gaps again): with the gaps its refined trial moved to, a one-sided stop that
@@ -892,18 +899,29 @@ def test_a_candidate_carries_the_gaps_its_trial_was_identified_from():
                                 gap_positive=0.001)
     refined = dataclasses.replace(proposed, gap_negative=0.0021, gap_positive=0.0012,
                                   coefficients=(1.0e4,))
-    evaluation = SimpleNamespace(
-        identified=lambda e: (0, refined) if e.kind == proposed.kind else None,
-        coefficient_quality=lambda e: (np.array([9.8e3]), 3.0, 1.5))
+    evaluation = _identified_as(proposed, refined)
     element, log_ratio, flatness = _coefficient_quality(evaluation, proposed)
     assert element.gaps == proposed.gaps and element.coefficients == (9.8e3,)
     assert (log_ratio, flatness) == (3.0, 1.5)
-    words = _refined_gap_words(proposed, evaluation, "m")
+    words = _refined_shape_words(proposed, evaluation, "m")
     assert "puts contact at -0.0021 and +0.0012 m" in words, words
     # unmoved gaps, and elements without gaps, need no words
-    assert _refined_gap_words(refined, evaluation, "m") == ""
+    assert _refined_shape_words(refined, evaluation, "m") == ""
     cubic = NonlinearElement("polynomial", "x3", exponent=3.0)
-    assert _refined_gap_words(cubic, evaluation, "m") == ""
+    assert _refined_shape_words(cubic, evaluation, "m") == ""
+
+
+def test_a_candidate_carries_the_friction_width_its_trial_was_identified_from():
+    """As a clearance's gaps: the refined smoothing width is said in words, in the
+    velocity unit of the bases, and the revision refines it again."""
+    proposed = NonlinearElement("coulomb_friction", "x1", "x2", width=3.23e-4)
+    refined = dataclasses.replace(proposed, width=5.6e-4, coefficients=(1.0e4,))
+    evaluation = _identified_as(proposed, refined)
+    element, _, _ = _coefficient_quality(evaluation, proposed)
+    assert element.width == proposed.width and element.coefficients == (9.8e3,)
+    words = _refined_shape_words(proposed, evaluation, "mm")
+    assert "smooths the friction over 0.00056 mm/s instead of 0.000323" in words, words
+    assert _refined_shape_words(refined, evaluation, "mm") == ""
 
 
 def test_a_kept_trial_is_the_revision_the_study_would_add():
