@@ -204,7 +204,8 @@ class Evaluation:
 
     def identified(self, element: NonlinearElement) -> tuple[int, NonlinearElement] | None:
         """Index and form of the model's element of the same kind and location (the last
-        one): spline knots resolved, clearance gaps refined when the study refines."""
+        one): spline knots resolved, clearance gaps and friction widths refined when the
+        study refines."""
         matches = [(k, e) for k, e in enumerate(self.model.elements)
                    if (e.kind, e.dof, e.ref) == (element.kind, element.dof, element.ref)]
         return matches[-1] if matches else None
