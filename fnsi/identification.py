@@ -54,7 +54,7 @@ from fnsi.oversampling import oversampled_bases, oversampling_factor
 from fnsi.refinement import Refinement, refine
 from fnsi.separability import Separability, separability
 from fnsi.simulation import FEEDTHROUGH, NoSteadyStateError
-from fnsi.simulation_order import SimulationOrder, simulation_order
+from fnsi.simulation_order import SimulationOrder, simulation_order, unseen_directions
 from fnsi.spectra import (
     INTEGRATIONS,
     LINE_SETS,
@@ -750,12 +750,14 @@ def _by_simulation(measurement: Measurement, settings: IdentificationSettings,
         return _stabilised(decomposition.model(order, own_feedthrough=own_feedthrough),
                            decomposition, own_feedthrough=own_feedthrough)[0]
 
+    record = measurement.select(settings.inputs, settings.outputs)
     return simulation_order(
-        diagram.orders, model_at, measurement.select(settings.inputs, settings.outputs),
+        diagram.orders, model_at, record,
         discard_periods=settings.discard_periods, band_high=settings.band[1],
         offsets_removed=settings.remove_offsets, near=near,
         repaired_at=(lambda order: model_at(order, own_feedthrough=False))
-        if decomposition.elements else None)
+        if decomposition.elements else None,
+        unseen=unseen_directions(record, settings.band, settings.discard_periods))
 
 
 def _estimation_comparison(model: StateSpaceModel, data: Measurement,

@@ -140,7 +140,8 @@ class UncertaintySummary(StoredDocument):
 class SimulationOrderSummary(StoredDocument):
     """The automatic order of order_rule simulation (fnsi.simulation_order): the lowest
     order whose simulation of the estimation data is within 10 % of the best above the
-    noise floor."""
+    noise floor, passing over an order whose FRF is an outlier in the input directions
+    those data do not excite."""
 
     order: int = Field(description="Chosen model order.", examples=[14])
     errors_percent: dict[str, float | None] = Field(
@@ -153,6 +154,10 @@ class SimulationOrderSummary(StoredDocument):
         [], description="Orders whose model could be simulated only with each element's "
         "own nonlinear feed-through held at zero (fnsi.feedthrough); their errors are "
         "those of the repaired model.", examples=[[6]])
+    unseen_outliers: list[int] = Field(
+        [], description="Orders within the tolerance passed over because their FRF "
+        "departs from the other such orders' in the input directions the estimation data "
+        "do not excite (fewer realisations than inputs).", examples=[[24]])
 
 
 class IdentificationJobResult(StoredDocument):
