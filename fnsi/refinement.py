@@ -52,7 +52,7 @@ import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import numba
 import numpy as np
@@ -257,12 +257,13 @@ def _resolvent(a: float, b: float, size: int, z: np.ndarray) -> np.ndarray:
 #: Shape parameters of the elements that refinement adjusts, by name: "both" moves the
 #: gap of a symmetric clearance, "negative" and "positive" one side of an asymmetric or
 #: one-sided one, "width" the smoothing width of Coulomb friction.
-SHAPE_PARAMETERS = ("both", "negative", "positive", "width")
+ShapeName = Literal["both", "negative", "positive", "width"]
 
 
-def shape_parameters(elements: tuple[NonlinearElement, ...]) -> tuple[tuple[int, str], ...]:
+def shape_parameters(elements: tuple[NonlinearElement, ...]
+                     ) -> tuple[tuple[int, ShapeName], ...]:
     """(element index, name) of every shape parameter that refinement adjusts
-    (:data:`SHAPE_PARAMETERS`): the gaps of clearances, whose fixed-pole estimate is off
+    (:data:`ShapeName`): the gaps of clearances, whose fixed-pole estimate is off
     by a few percent and to which a stiff stop is sensitive, and the smoothing widths of
     Coulomb friction, which set how fast the friction force reverses and are searched
     with the poles held (a hidden-benchmark friction at the right place validated at
@@ -283,14 +284,15 @@ def shape_parameters(elements: tuple[NonlinearElement, ...]) -> tuple[tuple[int,
     return tuple(out)
 
 
-def _shape_value(element: NonlinearElement, name: str) -> float:
-    """The value of one shape parameter (:data:`SHAPE_PARAMETERS`) of ``element``."""
+def _shape_value(element: NonlinearElement, name: ShapeName) -> float:
+    """The value of one shape parameter (:data:`ShapeName`) of ``element``."""
     if name == "width":
         return float(element.width)
     return element.gaps[1 if name == "positive" else 0]
 
 
-def _with_shape(element: NonlinearElement, name: str, value: float) -> NonlinearElement:
+def _with_shape(element: NonlinearElement, name: ShapeName, value: float
+                ) -> NonlinearElement:
     """The element with its shape parameter ``name`` set to ``value``."""
     if name in ("both", "width"):
         return replace(element, **{"gap" if name == "both" else "width": value})
@@ -305,7 +307,7 @@ class _Layout:
     sizes: np.ndarray          # block sizes
     n_inputs_ext: int          # q = m + s
     loop: np.ndarray           # indices of the loop outputs in the model's outputs
-    shapes: tuple[tuple[int, str], ...] = ()  # shape_parameters of the elements
+    shapes: tuple[tuple[int, ShapeName], ...] = ()  # shape_parameters of the elements
 
     @property
     def n(self) -> int:

@@ -44,6 +44,7 @@ the rule changes nothing.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -191,6 +192,8 @@ def simulation_order(orders: Sequence[int], model_at: Callable[[int], StateSpace
         None when no order could be simulated.
     """
     orders = sorted(orders)
+    # the unseen-direction check looks at the plateau's models again
+    model_at = functools.cache(model_at)
     errors: dict[int, float] = {}
     repaired: list[int] = []
     floor = [0.0]
@@ -405,7 +408,10 @@ def consistent_order(plateau: Sequence[int], model_at: Callable[[int], StateSpac
     parts = [np.einsum("klm,kmn->kln", h, unseen.projectors) for h in responses]
     distance = np.array([[np.linalg.norm(a - b) for b in parts] for a in parts])
     departure = np.array([np.median(np.delete(row, k)) for k, row in enumerate(distance)])
-    typical = UNSEEN_OUTLIER * departure.min()
+    # rounding bounds the least departure away from zero (two orders alike to the last
+    # digits would make every other order an outlier)
+    rounding = np.sqrt(np.finfo(float).eps) * max(np.linalg.norm(p) for p in parts)
+    typical = UNSEEN_OUTLIER * max(departure.min(), rounding)
     outliers = [o for o, d in zip(plateau, departure, strict=True) if d > typical]
     chosen = next(o for o in plateau if o not in outliers)
     return chosen, tuple(o for o in outliers if o < chosen)

@@ -241,3 +241,23 @@ def test_an_order_whose_frf_departs_where_the_record_does_not_see_is_passed_over
     assert (chosen, passed) == ((6, (4,)) if direction == "unseen" else (4, ()))
     # fewer than three orders: none can stand out
     assert consistent_order([4, 6], models.__getitem__, unseen) == (4, ())
+
+
+def test_orders_alike_to_rounding_do_not_make_the_others_outliers():
+    """Four of five orders give the same FRF to rounding (an extra state that nothing
+    excites): their departure, the median of their distances to the others, is at the
+    level of rounding, and twice it would pass over the lowest order, which departs by
+    1e-10 of the FRF: no difference an identification can resolve. The least departure
+    is bounded below by sqrt(eps) of the FRF, so the lowest order is kept; one that
+    departs by 1 % is still passed over."""
+    unseen = unseen_directions(_two_shaker_record(1), (4.5, 41.0), 1)
+    rng = np.random.default_rng(4)
+
+    def frf(scale: float) -> np.ndarray:
+        return scale * (rng.standard_normal((36, 3, 2)) + 1j * rng.standard_normal((36, 3, 2)))
+
+    common = frf(1.0)
+    alike = {order: _FRF(common + frf(1e-15)) for order in (6, 8, 10, 12)}
+    for departure, expected in ((1e-10, (4, ())), (1e-2, (6, (4,)))):
+        models = {4: _FRF(common + frf(departure) @ unseen.projectors), **alike}
+        assert consistent_order([4, 6, 8, 10, 12], models.__getitem__, unseen) == expected
