@@ -189,6 +189,17 @@ def _words(triple: tuple[str, frozenset, str | None]) -> str:
     return f"{kind}{'' if side is None else ' ' + side} at {where or 'no location'}"
 
 
+def _estimation_words(answer: dict, plan: dict) -> str:
+    """Revision 0's error on the estimation record against the true linear structure's,
+    where both are known: lower than the truth's there while higher on validation, the
+    model fitted what the estimation record alone holds (answers and truths of older
+    runs lack the figures: nothing is said)."""
+    fitted, truth = answer.get("estimation_pct"), plan.get("linear_estimation_error_pct")
+    if fitted is None or truth is None:
+        return ""
+    return f"; estimation record {_number(fitted):.3g} % against {truth:.3g} %"
+
+
 def score_hidden_case(case: str, truth: dict, answer: dict,
                       motion: dict[str, np.ndarray] | None = None) -> HiddenScore:
     """Score one study loop's answer against its truth (module docstring); ``motion``:
@@ -211,7 +222,7 @@ def score_hidden_case(case: str, truth: dict, answer: dict,
                                f"{score.before_pct:.3g} % against {truth_linear:.3g} % "
                                f"(order {revisions[0]['order']}"
                                + (f"; {revisions[0]['failure']}" if revisions[0]["failure"]
-                                  else "") + ")"))
+                                  else "") + ")" + _estimation_words(answer, plan)))
     claims = [claim(r["candidates"][0], motion) for r in rounds if r["found"]]
     for r in rounds:
         before = _number(r["nrmse_before_pct"])

@@ -15,7 +15,12 @@ import pytest
 from benchmarks.generalisation import hidden, oracle, synthesis
 from benchmarks.generalisation.blind import answer_path, blindfold, truth_path, write_json
 from benchmarks.generalisation.cases import Setup
-from benchmarks.generalisation.hidden_scoring import claim, score_hidden, truth_claim
+from benchmarks.generalisation.hidden_scoring import (
+    claim,
+    score_hidden,
+    score_hidden_case,
+    truth_claim,
+)
 from benchmarks.generalisation.structures import GROUND, Structure
 
 # 2-DOF chain, both masses damped (poles decaying at 2-3 / s: a few periods to steady state)
@@ -150,6 +155,23 @@ def test_a_clearance_gap_beyond_the_measured_motion_makes_a_stop():
     motion = {"x3": np.array([-1.0, 0.0, 2.0])}
     assert claim(ground, motion) == ("stop", frozenset((3, GROUND)), "positive")
     assert claim(ground, {"x3": np.array([-2.0, 2.0])})[0] == "clearance"
+
+
+def test_revision_0_worse_than_the_truth_says_both_records():
+    """A linear revision that validates at 95.8 % where the true linear structure does at
+    26.9 % is flagged; the flag also gives both errors on the estimation record (2.4 %
+    against 25 %: it fitted that record's distortion), and says nothing of them for an
+    answer recorded before they were."""
+    truth = {"plan": {"effects": 1, "kinds": ["quadratic"], "linear_error_pct": 26.9,
+                      "linear_estimation_error_pct": 25.0}, "elements": []}
+    answer = {"status": "ok", "noise_floor_pct": 0.88, "estimation_pct": 2.39, "rounds": [],
+              "revisions": [{"order": 34, "nrmse_pct": 95.8, "failure": None}]}
+    flags = dict(score_hidden_case("case0013", truth, answer).problems)
+    assert flags["revision 0 worse than the true linear structure"] == (
+        "95.8 % against 26.9 % (order 34); estimation record 2.39 % against 25 %")
+    del answer["estimation_pct"]
+    flags = dict(score_hidden_case("case0013", truth, answer).problems)
+    assert flags["revision 0 worse than the true linear structure"].endswith("(order 34)")
 
 
 def test_oracle_maps_the_truth_into_the_libraries_elements_and_coordinate():
