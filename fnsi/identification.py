@@ -40,6 +40,7 @@ from typing import Literal
 
 import numpy as np
 
+from fnsi.input_conditioning import input_warning
 from fnsi.measurement import Layout, Measurement
 from fnsi.modal import (
     Coefficient,
@@ -979,7 +980,8 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
         _physical(model, spectra, decomposition, settings, elements, ranges, order, diagram,
                   clock.timings), separability=separation,
         warnings=notes + _instability(model, diagram) + tuple(filter(None, [
-            driving_point_warning(settings, data.input_names, data.output_names)])),
+            driving_point_warning(settings, data.input_names, data.output_names),
+            input_warning(data, settings.band, settings.discard_periods)])),
         units=data.units, offsets=offsets, simulation_order=by_simulation)
     clock.done("physical", 0.9 if settings.refine else 1.0,
                "modal parameters and coefficients done")

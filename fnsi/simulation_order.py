@@ -52,9 +52,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fnsi.errors import ModelErrors, json_float
+from fnsi.input_conditioning import line_inputs
 from fnsi.measurement import Measurement
 from fnsi.simulation import FEEDTHROUGH, NoSteadyStateError
-from fnsi.spectra import band_lines, kept_record, measured_excitation
 from fnsi.statespace import StateSpaceModel
 from fnsi.validation import compare
 
@@ -366,27 +366,19 @@ def unseen_directions(measurement: Measurement, band: tuple[float, float],
     discard_periods : int
         Leading transient periods left out.
     """
-    kept = measurement.periods - discard_periods
-    u = measured_excitation(kept_record(np.asarray(measurement.u), measurement.periods,
-                                        discard_periods), kept)
-    lines = band_lines(u.shape[1], measurement.fs, band)
-    inputs = np.fft.rfft(u, axis=1)[:, lines].transpose(1, 0, 2)       # (K, R, m)
+    frequencies, inputs = line_inputs(measurement, band, discard_periods)   # (K, R, m)
     _, values, vh = np.linalg.svd(inputs, full_matrices=True)          # vh (K, m, m)
-    largest = values[:, 0]
-    excited = largest > 0.0
     seen = np.zeros(vh.shape[:2], dtype=bool)
-    seen[:, : values.shape[1]] = values > UNSEEN_RANK * largest[:, None]
-    unseen = excited[:, None] & ~seen
-    if not unseen.any():
+    seen[:, : values.shape[1]] = values > UNSEEN_RANK * values[:, :1]
+    if seen.all():
         return None
     # the row changes d with d u_r = 0: d^T in the null space of the realisations' rows
     # (inputs[k] d^T = 0), spanned by the conjugated rows i of vh of zero singular value;
     # the projection of d^T is sum_i conj(vh_i) vh_i d^T, that of d is d @ P with
     # P[a, b] = sum_i vh_i[a] conj(vh_i[b])
-    null = vh * unseen[:, :, None]
+    null = vh * ~seen[:, :, None]
     projectors = np.einsum("kia,kib->kab", null, np.conj(null))
-    return UnseenDirections(lines[excited] * measurement.fs / u.shape[1],
-                            projectors[excited])
+    return UnseenDirections(frequencies, projectors)
 
 
 def consistent_order(plateau: Sequence[int], model_at: Callable[[int], StateSpaceModel],

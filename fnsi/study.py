@@ -53,6 +53,7 @@ from fnsi.identification import (
     driving_point_warning,
     identify,
 )
+from fnsi.input_conditioning import input_warning
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.offsets import Offsets, measured_offsets, remove_offsets
@@ -457,12 +458,17 @@ class Study:
     @property
     def warnings(self) -> list[str]:
         """What makes the revisions' results unusable in part, with what to change: their
-        elements have no driving point (:func:`fnsi.identification.driving_point_warning`)."""
+        elements have no driving point (:func:`fnsi.identification.driving_point_warning`),
+        or the estimation record's realisations do not tell the inputs apart
+        (:func:`fnsi.input_conditioning.input_warning`)."""
         elements = tuple(e for r in self.revisions for e in r.elements)
-        message = driving_point_warning(
-            replace(self.settings, elements=elements),
-            self.settings.inputs or self.estimation.input_names, self.output_names)
-        return [] if message is None else [message]
+        settings = self.settings
+        return [message for message in (
+            driving_point_warning(replace(settings, elements=elements),
+                                  settings.inputs or self.estimation.input_names,
+                                  self.output_names),
+            input_warning(self.estimation.select(settings.inputs, settings.outputs),
+                          settings.band, settings.discard_periods)) if message is not None]
 
     def offsets(self, data: str) -> Offsets:
         """Offsets (means over the kept periods) of the study's channels in the
