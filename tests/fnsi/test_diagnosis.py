@@ -51,6 +51,8 @@ from fnsi.diagnosis import (
     _refined_shape_words,
     _simplest_clearance,
     _summary,
+    _treated,
+    _Trial,
     _trial,
     added_parameters,
     candidate_locations,
@@ -167,19 +169,18 @@ def test_elements_are_judged_refined_against_the_refined_revision(cubic_case):
     assert mode.claim.before == revision.nrmse_percent
 
 
-def test_automatic_order_trials_that_miss_the_floor_are_refined_as_the_study_would():
-    """At an automatic order an element's trial is FNSI's model when it validates within
-    the study's refinement threshold, else the better of it and its refinement: the
-    study refines the revision once the element is added, so judging FNSI's model alone
-    left a true cubic spring at 14.7 % against a refined linear revision at 2.03 % (seed
-    22 case 29 of the hidden benchmark)."""
+def test_automatic_order_trials_stay_fnsis_once_one_validates_within_the_threshold():
+    """At an automatic order an element's trial is FNSI's model; the trials that miss the
+    study's refinement threshold are refined only when none validates within it (a
+    refinement could then only tie the one that does: :func:`fnsi.diagnosis._treated`).
+    Here the true cubic spring validates within it, so every candidate is FNSI's trial."""
     study = linear_study(NonlinearElement("polynomial", "x3", exponent=3.0,
                                           coefficients=(2e8,)), quantity="velocity",
                          settings=dataclasses.replace(SETTINGS, order="auto"))
     diagnosis = study.diagnose(settings=EFFORT)
     base = study.revisions[0]
     elements = [c for c in diagnosis.candidates if c.element is not None]
-    refined = 0
+    missed = 0
     for c in elements:
         # as proposed (the candidate's element carries identified coefficients and the
         # gaps it was identified from; a clearance may come in two forms)
@@ -189,14 +190,42 @@ def test_automatic_order_trials_that_miss_the_floor_are_refined_as_the_study_wou
                         and p.element == dataclasses.replace(c.element, coefficients=None))
         trial = study.evaluate([proposed], "auto", trial=True,
                                order_near=base.identified_order)
-        if study.misses_floor(trial.nrmse_percent):
-            trial = study.better_refined(trial, trial=True, iterations=TRIAL_STEPS)
-            refined += any("refined by its simulation error" in r for r in trial.repairs)
+        missed += study.misses_floor(trial.nrmse_percent)
         assert c.validation_nrmse_percent == trial.nrmse_percent, c.effect
-    # the rule was exercised: some trial missed and gained (measured: the quadratic
-    # damper, 3.6 % refined); the cubic spring validates unrefined within the threshold
-    assert refined >= 1
-    assert diagnosis.candidates[0].effect is Effect.CUBIC_STIFFNESS
+    # some trial missed the threshold (measured: the clearance, 1.65 % for a 0.36 %
+    # floor, and the quadratic damper) and was left unrefined
+    top = diagnosis.candidates[0]
+    assert missed >= 1 and not study.misses_floor(top.validation_nrmse_percent)
+    assert top.effect is Effect.CUBIC_STIFFNESS
+
+
+class _Refining:
+    """Stands for the judge: records the trials it treats."""
+
+    def __init__(self, refine_trials: bool) -> None:
+        self.refine_trials, self.treated_errors = refine_trials, []
+
+    def treated(self, study, revision, evaluation):
+        self.treated_errors.append(evaluation.nrmse_percent)
+        return SimpleNamespace(nrmse_percent=evaluation.nrmse_percent / 2), Treatment.TRIAL
+
+
+@pytest.mark.parametrize(("errors", "refine_trials", "treated"), [
+    ((5.0, 0.9, 7.0), False, ()),                 # 0.9 % within 2 x 0.5 %: none refined
+    ((5.0, 1.1, 7.0), False, (5.0, 1.1, 7.0)),    # all miss: each treated
+    ((5.0, 0.9, 7.0), True, (5.0, 0.9, 7.0)),     # against a refined revision: all
+])
+def test_trials_are_treated_unless_one_already_validates_within_the_threshold(
+        errors, refine_trials, treated):
+    study = SimpleNamespace(misses_floor=lambda error: error > 2 * 0.5)
+    judge = _Refining(refine_trials)
+    trials = [_Trial(None, None, SimpleNamespace(nrmse_percent=e), Treatment.FNSI)
+              for e in errors]
+    out = _treated(study, 0, [*trials, _Trial(None, None, None, Treatment.FNSI)], judge, 2)
+    assert tuple(judge.treated_errors) == treated
+    expected = [e / 2 if treated else e for e in errors]
+    assert [t.evaluation.nrmse_percent for t in out[:3]] == expected
+    assert out[3].evaluation is None          # a trial that could not be identified
 
 
 def test_candidates_validated_side_by_side_are_those_validated_one_by_one(cubic_case):
