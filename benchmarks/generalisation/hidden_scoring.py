@@ -79,6 +79,9 @@ class HiddenScore:
         Last revision's and revision 0's validation NRMSE, and the noise floor [%].
     problems : list of (str, str)
         (category, detail) of everything that went wrong.
+    warnings : list of str
+        The study's warnings (:attr:`fnsi.study.Study.warnings`: e.g. inputs its
+        realisations do not tell apart), listed beside a failure.
     """
 
     case: str
@@ -95,6 +98,7 @@ class HiddenScore:
     floor_pct: float = math.nan
     before_pct: float = math.inf
     problems: list[tuple[str, str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def _dof(name: str | None) -> int:
@@ -183,6 +187,10 @@ def truth_claim(element: dict) -> tuple[str, frozenset, str | None]:
     return element["kind_class"], frozenset((dof, ref)), side
 
 
+WARNING_CHARS = 200
+"""Characters of each study warning a failure's entry quotes."""
+
+
 def _words(triple: tuple[str, frozenset, str | None]) -> str:
     kind, location, side = triple
     where = "-".join("ground" if d == -1 else f"x{d}" for d in sorted(location, reverse=True))
@@ -213,6 +221,7 @@ def score_hidden_case(case: str, truth: dict, answer: dict,
         return score
     hidden = [truth_claim(e) for e in truth["elements"]]
     revisions = answer["revisions"]
+    score.warnings = list(answer.get("warnings", []))   # older answers have none
     score.floor_pct = _number(answer["noise_floor_pct"])
     score.before_pct = _number(revisions[0]["nrmse_pct"])
     score.final_pct = _number(revisions[-1]["nrmse_pct"])
@@ -378,4 +387,5 @@ def report(scores: list[HiddenScore], seed: int, header: str,
                      f"{effects or 'nothing'}"
                      f", linear error {p['linear_error_pct']:.3g} %")
         lines += [f"  - {kind}: {detail}" for kind, detail in s.problems]
+        lines += [f"  - the study warned: {w[:WARNING_CHARS]}" for w in s.warnings]
     return "\n".join(lines) + "\n"

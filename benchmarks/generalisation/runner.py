@@ -120,6 +120,7 @@ def answer_study(path: Path) -> dict:
     return {"status": "ok", "create_s": create_s, "rounds": rounds,
             "noise_floor_pct": json_float(study.noise_floor_percent),
             "estimation_pct": json_float(_estimation_percent(study)),
+            "warnings": study.warnings,
             "revisions": [{"note": r.note, "order": r.identified_order,
                            "elements": [e.to_json() for e in r.elements],
                            "nrmse_pct": json_float(r.nrmse_percent), "failure": r.failure}

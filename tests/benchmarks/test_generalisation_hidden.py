@@ -17,6 +17,7 @@ from benchmarks.generalisation.blind import answer_path, blindfold, truth_path, 
 from benchmarks.generalisation.cases import Setup
 from benchmarks.generalisation.hidden_scoring import (
     claim,
+    report,
     score_hidden,
     score_hidden_case,
     truth_claim,
@@ -172,6 +173,23 @@ def test_revision_0_worse_than_the_truth_says_both_records():
     del answer["estimation_pct"]
     flags = dict(score_hidden_case("case0013", truth, answer).problems)
     assert flags["revision 0 worse than the true linear structure"].endswith("(order 34)")
+
+
+def test_a_failure_lists_the_studys_warnings():
+    """The study's warnings (here: inputs its realisations do not tell apart) are quoted
+    beside the failure they may explain; an answer recorded before them has none."""
+    plan = {"effects": 1, "kinds": ["quadratic"], "locations": ["ground, far"],
+            "linear_error_pct": 26.9, "topology": "chain", "dofs": 8,
+            "damping": "proportional", "close_modes": False, "quantity": "displacement",
+            "inputs": 2, "sensors": 1, "noise_pct": 1.2, "fs_ratio": 4.18}
+    warning = "the 2 realisations' inputs are nearly parallel on 11 % of the band's lines"
+    answer = {"status": "ok", "noise_floor_pct": 0.88, "rounds": [], "warnings": [warning],
+              "revisions": [{"order": 34, "nrmse_pct": 95.8, "failure": None}]}
+    score = score_hidden_case("case0013", {"plan": plan, "elements": []}, answer)
+    assert score.warnings == [warning]
+    assert f"  - the study warned: {warning}" in report([score], 32, "", None).splitlines()
+    del answer["warnings"]
+    assert score_hidden_case("case0013", {"plan": plan, "elements": []}, answer).warnings == []
 
 
 def test_oracle_maps_the_truth_into_the_libraries_elements_and_coordinate():
