@@ -2155,7 +2155,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     finally:   # a cancelled diagnosis (report raised) drops the trials not started
         pool.shutdown(wait=True, cancel_futures=True)
     mode = done.pop() if settings.include_missing_mode else None
-    report(0.95, "refining the trials that miss the noise floor")
+    report(0.95, "refining the trials that miss the noise floor, unless one reaches it")
     trials = _treated(study, index, done, elements_judge, settings.workers)
     report(0.96, "identifying the revision at the candidates' orders")
     elements_judge.identify_references(study, index, [t.reference for t in trials],
