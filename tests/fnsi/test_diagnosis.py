@@ -30,6 +30,7 @@ from fnsi.acquisition import acquire
 from fnsi.claim import claim_test
 from fnsi.diagnosis import (
     DISSIPATIVE,
+    FIRST_TRIALS,
     MAX_FRICTION_WIDTH,
     MAX_KIND_LOCATIONS,
     TRIAL_STEPS,
@@ -193,10 +194,16 @@ def test_automatic_order_trials_stay_fnsis_once_one_validates_within_the_thresho
         missed += study.misses_floor(trial.nrmse_percent)
         assert c.validation_nrmse_percent == trial.nrmse_percent, c.effect
     # some trial missed the threshold (measured: the clearance, 1.65 % for a 0.36 %
-    # floor, and the quadratic damper) and was left unrefined
+    # floor) and was left unrefined
     top = diagnosis.candidates[0]
     assert missed >= 1 and not study.misses_floor(top.validation_nrmse_percent)
     assert top.effect is Effect.CUBIC_STIFFNESS
+    # the first two proposals answered the diagnosis: the third was not validated
+    assert len(elements) == FIRST_TRIALS < EFFORT.validated_candidates
+    third = diagnosis.proposals[FIRST_TRIALS]
+    assert (third.effect, third.location) not in {(c.effect, c.location) for c in elements}
+    assert any(f"{third.effect} {third.location.phrase}" in note
+               and "were not validated" in note for note in diagnosis.notes)
 
 
 class _Refining:
