@@ -255,6 +255,13 @@ def score_hidden_case(case: str, truth: dict, answer: dict,
     elif not score.top1:
         score.problems.append((_miss_category(claims[0], hidden),
                                f"claimed {_words(claims[0])}; true {truth_words}"))
+    invented = _beyond_truth(claims, hidden)
+    if invented:
+        score.problems.append(("claimed beyond the truth", "claimed " + " then ".join(
+            _words(c) for c in invented) + f" once the true {truth_words} "
+            f"{'was' if len(hidden) == 1 else 'were'} claimed (error "
+            f"{score.before_pct:.3g} % -> {score.final_pct:.3g} %, floor "
+            f"{score.floor_pct:.3g} %)"))
     if len(hidden) == 2 and not score.pair_found:
         score.problems.append(("pair not completed", "claimed " + (" then ".join(
             _words(c) for c in claims) or "nothing") + f"; true {truth_words}"))
@@ -264,6 +271,16 @@ def score_hidden_case(case: str, truth: dict, answer: dict,
                                f"(floor {score.floor_pct:.3g} %) with "
                                f"{' then '.join(r['note'] for r in revisions[1:]) or 'nothing'}"))
     return score
+
+
+def _beyond_truth(claims: list[tuple], hidden: list[tuple]) -> list[tuple]:
+    """The claims made after every hidden effect was already claimed: what the loop
+    invented once the truth was in the model (the loop's rounds stop only when nothing
+    more is claimed)."""
+    for count in range(len(claims)):
+        if set(hidden) <= set(claims[:count]):
+            return claims[count:]
+    return []
 
 
 def _miss_category(claimed: tuple, hidden: list[tuple]) -> str:

@@ -192,6 +192,34 @@ def test_a_failure_lists_the_studys_warnings():
     assert score_hidden_case("case0013", {"plan": plan, "elements": []}, answer).warnings == []
 
 
+def test_a_claim_made_once_the_truth_is_in_the_model_is_flagged():
+    """The loop's second round claiming a damper after the true cubic spring was claimed
+    is an invention the headline does not count (top-1 and the floor read the first
+    claim and the last error): it gets its own category. A pair's second claim, and a
+    wrong first claim followed by the truth, are not inventions after the truth."""
+    truth = {"plan": {"effects": 1, "kinds": ["cubic_hardening"], "linear_error_pct": 20.0},
+             "elements": [{"dof": 2, "ref": -1, "kind_class": "cubic_stiffness"}]}
+    cubic = {"effect": "cubic_stiffness", "location": {"dof": "x2", "ref": None},
+             "element": {"kind": "polynomial"}}
+    damper = {"effect": "quadratic_damping", "location": {"dof": "x3", "ref": None},
+              "element": {"kind": "quadratic_damping"}}
+
+    def flags(*claimed: dict) -> dict:
+        answer = {"status": "ok", "noise_floor_pct": 0.5,
+                  "rounds": [{"diagnosis_s": 1.0, "found": True, "summary": "",
+                              "nrmse_before_pct": 20.0, "candidates": [c]}
+                             for c in claimed],
+                  "revisions": [{"order": 8, "nrmse_pct": e, "failure": None, "note": ""}
+                                for e in (20.0, 0.8, 0.7)[: len(claimed) + 1]]}
+        return dict(score_hidden_case("case0001", truth, answer).problems)
+
+    assert flags(cubic, damper)["claimed beyond the truth"] == (
+        "claimed quadratic_damping at x3-ground once the true cubic_stiffness at "
+        "x2-ground was claimed (error 20 % -> 0.7 %, floor 0.5 %)")
+    assert "claimed beyond the truth" not in flags(cubic)
+    assert "claimed beyond the truth" not in flags(damper, cubic)
+
+
 def test_oracle_maps_the_truth_into_the_libraries_elements_and_coordinate():
     # a contact below -g- and above g+ of the rest position is below -(g- + c) and above
     # g+ - c of a coordinate whose zero is c above rest (module docstring of .oracle)
