@@ -517,8 +517,9 @@ def _add_study_commands(commands) -> None:
     diagnose.add_argument("--top-locations", type=int, default=3,
                           help="locations screened further per kind of effect (default 3)")
     diagnose.add_argument("--validated-candidates", type=int, default=4,
-                          help="best candidates identified and simulated on the validation "
-                          "data (default 4)")
+                          help="most candidates identified and simulated on the validation "
+                          "data, the two best first, the others only when neither reaches "
+                          "twice the noise floor (default 4)")
     diagnose.add_argument("--curve-locations", type=int, default=1,
                           help="locations whose spline stiffness curve is drawn (default 1)")
     diagnose.add_argument("--no-missing-mode", action="store_true",

@@ -215,8 +215,10 @@ class DiagnosisSettings:
         Best-screened locations whose kinds are compared (stage 2); the connections
         among the DOFs of near-tied locations are added (:func:`kind_locations`).
     validated_candidates : int
-        Element candidates identified and simulated on validation data (stage 3), best
-        stage-2 scores first; the missing-mode candidate comes on top.
+        Most element candidates identified and simulated on validation data (stage 3),
+        best stage-2 scores first: the first :data:`FIRST_TRIALS`, then the others only
+        when none of those reaches the study's refinement threshold. The missing-mode
+        candidate comes on top.
     curve_locations : int
         Locations of the best stage-2 proposals whose nonparametric stiffness curve is
         identified for display.

@@ -113,8 +113,9 @@ class DiagnosisRequest(RequestModel):
                                      "whose kinds of effect are compared; the connections "
                                      "among the DOFs of near-tied locations are added.")
     validated_candidates: StrictInt = Field(
-        4, ge=1, le=20, description="Candidates identified and simulated on the validation "
-        "data (each costs about one revision).")
+        4, ge=1, le=20, description="Most candidates identified and simulated on the "
+        "validation data (each costs about one revision): the two best first, the others "
+        "only when neither validates within twice the noise floor.")
     curve_locations: StrictInt = Field(1, ge=0, le=10, description="Locations of the best "
                                        "proposals whose nonparametric stiffness curve is "
                                        "identified.")
