@@ -1039,8 +1039,19 @@ def _find(elements: list[NonlinearElement], item: NonlinearElement | dict | int)
     for k, element in enumerate(elements):
         if element == wanted:
             return k
+    # the element as it was added, whose shapes the revision holds refined
+    # (Study.kept_evaluation): the only one of its law and place
+    alike = [k for k, e in enumerate(elements) if _unshaped(e) == _unshaped(wanted)]
+    if len(alike) == 1:
+        return alike[0]
     raise ValueError(f"{wanted.name} is not in the revision; its elements are "
                      f"{[e.name for e in elements]}")
+
+
+def _unshaped(element: NonlinearElement) -> dict:
+    """An element's parameters but its shapes (:data:`SHAPE_FIELDS`) and coefficients."""
+    return {f.name: getattr(element, f.name) for f in dataclasses.fields(element)
+            if f.name not in (*SHAPE_FIELDS, "coefficients")}
 
 
 SHAPE_FIELDS = ("gap", "gap_negative", "gap_positive", "width")

@@ -482,3 +482,22 @@ def test_a_revision_whose_refinement_moved_its_gaps_is_identified_again_with_the
     evaluations[(proposed,)] = _shaped_evaluation(proposed, refined, first, refined=False)
     Study.kept_evaluation(study, [proposed], "auto", order_near=18)
     assert asked == [(proposed,), (proposed,)]
+
+
+def test_an_element_is_removed_as_it_was_added_when_the_revision_refined_its_gaps():
+    """A revision identified again with its refined gaps holds those; the clearance the
+    user added (the diagnosis's proposal) still names it, when it is the only one of its
+    law at that place."""
+    from fnsi.study import _find
+
+    proposed = NonlinearElement("clearance", "x5", "x6", gap_negative=4.48e-4,
+                                gap_positive=4.32e-4)
+    refined = dataclasses.replace(proposed, gap_negative=4.24e-4, gap_positive=4.82e-4)
+    cubic = NonlinearElement("polynomial", "x5", "x6", exponent=3.0)
+    assert _find([cubic, refined], proposed.to_json()) == 1
+    assert _find([cubic, refined], refined) == 1
+    with pytest.raises(ValueError, match="is not in the revision"):   # two alike: ambiguous
+        _find([refined, dataclasses.replace(refined, gap_positive=5e-4)], proposed)
+    with pytest.raises(ValueError, match="is not in the revision"):   # another place
+        _find([refined], dataclasses.replace(proposed, ref="x4"))
+
