@@ -48,6 +48,7 @@ from fnsi.diagnosis import (
     _FollowUp,
     _friction_proposal,
     _Judge,
+    _keeps,
     _law,
     _refined_shape_words,
     _simplest_clearance,
@@ -626,17 +627,28 @@ def test_a_kept_trial_keeps_its_proposal_and_its_other_forms(monkeypatch):
 
     def trials(study, revision, proposals, judge, by_location, workers):
         asked.append((list(proposals), judge))
-        return [SimpleNamespace(proposal=p, kept=judge.kept) for p in proposals]
+        return [SimpleNamespace(proposal=p, kept=judge.kept, treatment=Treatment.KEPT)
+                for p in proposals]
 
+    def kept(study, candidates, done):   # the stop's trial validates best of those missing
+        skipped.append(list(done))
+        return [i for i in [1] if i not in done]
+
+    skipped = []
     monkeypatch.setattr("fnsi.diagnosis._trials", trials)
     monkeypatch.setattr("fnsi.diagnosis._judged", lambda s, r, t, j, m: list(t))
+    monkeypatch.setattr("fnsi.diagnosis._candidate", lambda s, r, t, j: t)
+    monkeypatch.setattr("fnsi.diagnosis.kept_trials", kept)
     judge = _Judge(10.0, 0.5, None, None, 3)
-    first = [SimpleNamespace(proposal=p, kept=False) for p in (cubic, stop)]
+    first = [SimpleNamespace(proposal=p, kept=False, treatment=Treatment.TRIAL)
+             for p in (cubic, stop)]
     follow = _FollowUp(None, 0, judge, {}, 1, None, list(first))
-    again = follow.keep([1])
+    again = follow.keep_best()
     assert asked[0][0] == [stop] and asked[0][1].kept
     assert again[1].proposal is stop and again[1].kept and again[0] is first[0]
     assert follow.judge.candidates == 4 and not follow.judge.kept
+    # asked again (after the forms stage), a trial kept already is not kept twice
+    assert follow.keep_best() == again and skipped == [[], [1]] and len(asked) == 1
     assert form_proposals([dataclasses.replace(
         _given_candidate(Effect.CLEARANCE, 4.0), location=where,
         element=dataclasses.replace(stop.element, coefficients=(1e3,)))],
@@ -917,6 +929,28 @@ def test_kept_trials_are_the_best_element_candidates_that_missed_the_floor():
     at_threshold, best, second, third = (candidate(e) for e in (0.5, 7.0, 8.0, 9.0))
     others = [candidate(1.0, Effect.MISSING_MODE), candidate(2.0, failure="diverged")]
     assert kept_trials(study, [third, at_threshold, second, *others, best]) == [5, 2]
+    # those kept already are not kept again: the next best follow
+    assert kept_trials(study, [third, at_threshold, second, *others, best], [5]) == [2, 0]
+
+
+def test_the_best_are_kept_while_the_best_claim_still_misses_the_floor():
+    """Nothing claimed, or a claim whose trial misses the study's refinement threshold
+    and leaves more than a tenth of the revision's squared error above the floor, on a
+    revision that misses it: the best trials are identified as the study would keep
+    them (a trial at 18 % can reach 0.73 % once added, seed 35 case 4). A claim within
+    the threshold, or one that removed nearly all of the excess, or a revision already
+    within it, ends the search."""
+    study = SimpleNamespace(misses_floor=lambda nrmse: nrmse > 0.6,   # floor 0.3 %
+                            noise_floor_percent=0.3)
+    far, near = _given_candidate(Effect.CLEARANCE, 5.0), _given_candidate(Effect.CLEARANCE, 0.5)
+    unclaimed = _given_candidate(Effect.CLEARANCE, 12.0)
+    assert far.convincing and near.convincing and not unclaimed.convincing
+    assert _keeps(study, 10.0, [far, unclaimed])          # 5 % leaves 25 % of the excess
+    assert not _keeps(study, 20.0, [far, unclaimed])      # ... 6 % of 20 %'s: the right law
+    assert _keeps(study, 10.0, [unclaimed])
+    assert not _keeps(study, 10.0, [near, far])
+    assert not _keeps(study, 0.55, [unclaimed])
+    assert not _keeps(study, 10.0, [])
 
 
 def _identified_as(proposed: NonlinearElement, refined: NonlinearElement) -> SimpleNamespace:
