@@ -70,6 +70,7 @@ proposed.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import os
 import re
@@ -2190,7 +2191,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     # curves where the best proposals act (the screening's best location may be a tie)
     curve_at = list(dict.fromkeys(p.location for p in proposals))[: settings.curve_locations]
     for count, location in enumerate(curve_at):
-        report(0.4 + 0.6 * count / steps, f"stiffness curve {location.phrase}")
+        report(0.4 + 0.55 * count / steps, f"stiffness curve {location.phrase}")
         spline = NonlinearElement("spline", location.dof, location.ref,
                                   intervals=settings.curve_intervals)
         try:
@@ -2228,23 +2229,24 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     if settings.include_missing_mode:
         work.insert(first, ("one more linear mode",
                             functools.partial(_validate_mode, study, index, judge)))
+        first += 1
     # each trial is an identification and simulations of its own, most of it in
     # compiled code and LAPACK that release the interpreter: validated side by side
     pool = ThreadPoolExecutor(max_workers=settings.workers)
-    count = functools.partial(next, iter(range(steps)))
+    validated = itertools.count(settings.curve_locations)
 
     def validate(tasks: Sequence[tuple[str, Callable]]) -> list:
         futures = [pool.submit(task) for _, task in tasks]
+        results = []
         for (name, _), future in zip(tasks, futures, strict=True):
-            future.result()
-            report(0.4 + 0.6 * (settings.curve_locations + count()) / steps,
-                   f"validated {name}")
-        return [future.result() for future in futures]
+            results.append(future.result())
+            report(0.4 + 0.55 * next(validated) / steps, f"validated {name}")
+        return results
 
     try:
-        done = validate(work[: first + int(settings.include_missing_mode)])
+        done = validate(work[:first])
         mode = done.pop() if settings.include_missing_mode else None
-        rest = work[first + int(settings.include_missing_mode):]
+        rest = work[first:]
         if rest and (answer := _answered(study, done, elements_judge)) is not None:
             notes.append(_unvalidated_words([name for name, _ in rest], answer, floor))
         elif rest:

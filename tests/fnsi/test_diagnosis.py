@@ -469,6 +469,11 @@ def test_progress_is_reported_and_can_cancel(cubic_case):
     with pytest.raises(RuntimeError, match="cancelled"):
         study.diagnose(0, settings=EFFORT, progress=cancel)
     assert seen == sorted(seen) and seen[0] == 0.0
+    # uncancelled, the fraction never goes back (the validated trials before the
+    # refinement stage's 0.95) and ends at 1
+    seen.clear()
+    study.diagnose(0, settings=EFFORT, progress=lambda fraction, message: seen.append(fraction))
+    assert seen == sorted(seen) and seen[-1] == 1.0
 
 
 def test_default_locations_pair_channels_on_one_axis():
