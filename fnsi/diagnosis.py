@@ -35,7 +35,8 @@ candidate missing effects in three stages, from cheap to expensive:
    cheap functions at each (:mod:`fnsi.reidentified_screening`), and the best laws at
    the best of those are validated too (:func:`reidentified_proposals`). When still none
    is claimed, or the best claim's trial still misses the floor by the study's
-   refinement threshold, the two element candidates that validate best are identified
+   refinement threshold and leaves more than :data:`KEPT_EXCESS` of the revision's error
+   above it, the two element candidates that validate best are identified
    again as the study would keep them once added, fully refined and at the orders above
    too (:func:`kept_trials`), and so are the next two when the later stages have
    validated more (:func:`_keeps`).
