@@ -38,8 +38,8 @@ candidate missing effects in three stages, from cheap to expensive:
    refinement threshold and leaves more than :data:`KEPT_EXCESS` of the revision's error
    above it, the two element candidates that validate best are identified
    again as the study would keep them once added, fully refined and at the orders above
-   too (:func:`kept_trials`), and so are the next two when the later stages have
-   validated more (:func:`_keeps`).
+   too (:func:`kept_trials`), and so are the next two once the best clearance's other
+   forms are validated (:func:`_keeps`).
 
 A candidate whose model cannot be simulated is repaired, not dropped
 (:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
@@ -2279,7 +2279,6 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     if _keeps(study, before, candidates):
         report(0.985, "identifying the best candidates as the study would keep them")
         candidates = follow.keep_best()
-    validated = len(follow.trials)
     if candidates and not candidates[0].convincing and study.misses_floor(before):
         fresh = unvisited_proposals(problem, scores, [t.proposal for t in follow.trials],
                                     held, settings.validated_candidates)
@@ -2293,9 +2292,12 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     if forms:
         report(0.988, "validating the best clearance's other forms")
         candidates = follow.add(forms)
-    # the forms and the next places validated since may hold the law that reaches the
-    # floor once kept (seed 35 case 4: the stop was a form of the claimed clearance)
-    if len(follow.trials) > validated and _keeps(study, before, candidates):
+    # the best clearance's other forms, which the screening cannot tell from it, may hold
+    # the law that reaches the floor once kept (seed 35 case 4: the stop, a form of the
+    # claimed clearance); the next places' laws are judged as trials, as the first ones
+    # were (keeping them too took seed 36 case 3's second diagnosis from 287 to 624 s,
+    # under like loads, for the same verdict)
+    if forms and _keeps(study, before, candidates):
         report(0.989, "identifying the best later candidates as the study would keep them")
         candidates = follow.keep_best()
     if candidates and not candidates[0].convincing:
