@@ -16,7 +16,7 @@ import pytest
 
 from fnsi.diagnosis import DiagnosisSettings
 from fnsi.nonlinear import NonlinearElement
-from fnsi.study import Study, law_name
+from fnsi.study import Study, _find, law_name
 from fnsi.study_plots import diagnosis_figures, residual_map, study_figures
 from tests.fnsi.test_diagnosis import SETTINGS, chain, measure
 
@@ -488,8 +488,6 @@ def test_an_element_is_removed_as_it_was_added_when_the_revision_refined_its_gap
     """A revision identified again with its refined gaps holds those; the clearance the
     user added (the diagnosis's proposal) still names it, when it is the only one of its
     law at that place."""
-    from fnsi.study import _find
-
     proposed = NonlinearElement("clearance", "x5", "x6", gap_negative=4.48e-4,
                                 gap_positive=4.32e-4)
     refined = dataclasses.replace(proposed, gap_negative=4.24e-4, gap_positive=4.82e-4)
