@@ -2177,11 +2177,11 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
     another location (:func:`_partners`). When no pair is claimed, the pair of two such
     candidates (each significant alone) whose trial validates best, if it misses the
     floor by the study's refinement threshold, is identified again as the study would
-    keep it (fully refined, at the orders above too),
-    as the kept stage does for one candidate (seed 37 case 3 of the hidden benchmark: a
-    damper to ground at x0 and a clearance between x0 and x2, each significant alone,
-    5.70 and 5.83 % against the revision's 6.14 %; together 8.45 % as a trial, 2.21 %
-    kept; floor 0.43 %). A pair is validated once, whichever of the two found it. Of the
+    keep it (fully refined, at the orders above too), as the kept stage does for one
+    candidate (seed 37 case 3 of the hidden benchmark: a damper to ground at x0 and a
+    clearance between x0 and x2, each significant alone, 5.70 and 5.83 % against the
+    revision's 6.14 %; together 8.45 % as a trial, 2.21 % kept; floor 0.43 %). A pair
+    is validated once, whichever of the two found it. Of the
     pairs whose model passes the claim rule (the parameters of both, one more test per
     pair for the family-wise level) with both coefficients plausible, the one with the
     lowest validation error makes its candidate claimed, the other location its
