@@ -453,15 +453,15 @@ def _cmd_study_diagnose(args: argparse.Namespace) -> int:
                   f"{'' if candidate.beats_noise_floor else ', not claimed'}"
                   f"{'' if candidate.concern is None else ', physically implausible'}")
         print(f"   {candidate.explanation}")
-        if candidate.element is not None:
-            print(f"   --add '{json.dumps(candidate.element.to_json())}'")
+        for element in candidate.elements:
+            print(f"   --add '{json.dumps(element.to_json())}'")
     for note in diagnosis.notes:
         print(f"note: {note}")
     _write_files(folder, files)
     _write_files(folder, {REPORT_NAME: _study_report(folder)})
     best = diagnosis.candidates[0] if diagnosis.candidates else None
-    if args.apply and best is not None and best.element is not None and diagnosis.found:
-        revision = study.add_revision(add=[best.element], note=best.effect.value,
+    if args.apply and best is not None and best.elements and diagnosis.found:
+        revision = study.add_revision(add=best.elements,
                                       base=diagnosis.revision, progress=_progress)
         print(file=sys.stderr)
         _save_study(study, folder, study_figures(study, revision.number))

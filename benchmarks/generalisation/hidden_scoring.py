@@ -21,7 +21,8 @@ Per case:
 - *floor reached* (cases with an effect): the last revision's validation error is within
   twice the noise floor;
 - *false alarm* (cases without an effect): the first diagnosis claims anything;
-- *pair found* (two effects): the two rounds' top candidates name both effects;
+- *pair found* (two effects): the rounds' top candidates, with the partner a top
+  candidate is claimed together with, name both effects;
 - *nothing found above the floor*: a diagnosis found nothing while its revision's
   validation error exceeded three times the noise floor (any case).
 
@@ -232,7 +233,7 @@ def score_hidden_case(case: str, truth: dict, answer: dict,
                                f"(order {revisions[0]['order']}"
                                + (f"; {revisions[0]['failure']}" if revisions[0]["failure"]
                                   else "") + ")" + _estimation_words(answer, plan)))
-    claims = [claim(r["candidates"][0], motion) for r in rounds if r["found"]]
+    claims = [claim(c, motion) for r in rounds if r["found"] for c in _claimed(r)]
     for r in rounds:
         before = _number(r["nrmse_before_pct"])
         if not r["found"] and before > NOTHING_FACTOR * score.floor_pct:
@@ -271,6 +272,13 @@ def score_hidden_case(case: str, truth: dict, answer: dict,
                                f"(floor {score.floor_pct:.3g} %) with "
                                f"{' then '.join(r['note'] for r in revisions[1:]) or 'nothing'}"))
     return score
+
+
+def _claimed(round_: dict) -> list[dict]:
+    """What a round that found something claims: its top candidate, then the partner it
+    was claimed together with (older answers have no ``partner``)."""
+    top = round_["candidates"][0]
+    return [top] + ([top["partner"]] if top.get("partner") else [])
 
 
 def _beyond_truth(claims: list[tuple], hidden: list[tuple]) -> list[tuple]:

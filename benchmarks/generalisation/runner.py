@@ -110,8 +110,8 @@ def answer_study(path: Path) -> dict:
             if not diagnosis.found:
                 break
             top = diagnosis.candidates[0]
-            if top.element is not None:
-                study.add_revision(add=[top.element], note=top.effect.value)
+            if top.elements:   # a pair's claim adds both
+                study.add_revision(add=top.elements)
             else:
                 study.add_revision(order=top.order, note="one more mode")
     except Exception as error:  # a refusal or a crash is the library's answer too

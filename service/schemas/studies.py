@@ -133,6 +133,16 @@ class Location(BaseModel):
                             examples=["NC2b_Z"])
 
 
+class Partner(BaseModel):
+    """The second effect a candidate is claimed together with."""
+
+    effect: Effect = Field(description="Kind of the second effect.")
+    location: Location = Field(description="Where it acts.")
+    element: NonlinearElementSpec = Field(
+        description="Element to add beside the candidate's, with the coefficients "
+        "identified together with it.", examples=[{**_CLEARANCE, "coefficients": [98.5]}])
+
+
 class Candidate(BaseModel):
     """A candidate missing effect, validated by identification and simulation."""
 
@@ -172,11 +182,10 @@ class Candidate(BaseModel):
         "validated.")
     repairs: list[str] = Field(default_factory=list, description=(
         "What was changed so that its model could be simulated."))
-    partner: Location | None = Field(
-        None, description="Where a second effect acts that this candidate is claimed "
-        "together with (neither was worth its parameters alone; claim then tests both "
-        "added together): add this one and diagnose again to find the other. Null when "
-        "judged alone.")
+    partner: Partner | None = Field(
+        None, description="The second effect this candidate is claimed together with "
+        "(neither was worth its parameters alone; claim then tests both added together): "
+        "POST both elements as one revision's `add`. Null when judged alone.")
 
 
 class ClaimTestSummary(BaseModel):

@@ -220,6 +220,37 @@ def test_a_claim_made_once_the_truth_is_in_the_model_is_flagged():
     assert "claimed beyond the truth" not in flags(damper, cubic)
 
 
+def test_a_pair_claimed_in_one_round_finds_both_effects():
+    """A top candidate claimed together with its partner (both added in one round) names
+    both hidden effects: the pair is found and the first decides top-1; a partner at the
+    wrong place leaves the pair incomplete."""
+    truth = {"plan": {"effects": 2, "kinds": ["quadratic_damping", "clearance"],
+                      "linear_error_pct": 6.0},
+             "elements": [{"dof": 0, "ref": -1, "kind_class": "quadratic_damping"},
+                          {"dof": 0, "ref": 2, "kind_class": "clearance"}]}
+    damper = {"effect": "quadratic_damping", "location": {"dof": "x0", "ref": None},
+              "element": {"kind": "quadratic_damping"}}
+
+    def score(partner_ref: str):
+        clearance = {"effect": "clearance", "location": {"dof": "x0", "ref": partner_ref},
+                     "element": {"kind": "clearance", "gap": 1e-3}}
+        top = {**damper, "partner": clearance}
+        answer = {"status": "ok", "noise_floor_pct": 0.43,
+                  "rounds": [{"diagnosis_s": 1.0, "found": True, "summary": "",
+                              "nrmse_before_pct": 6.14, "candidates": [top]},
+                             {"diagnosis_s": 1.0, "found": False, "summary": "",
+                              "nrmse_before_pct": 0.5, "candidates": []}],
+                  "revisions": [{"order": 8, "nrmse_pct": e, "failure": None, "note": ""}
+                                for e in (6.14, 0.5)]}
+        return score_hidden_case("case0003", truth, answer)
+
+    found = score("x2")
+    assert found.top1 and found.pair_found and found.floor_reached
+    missed = score("x1")
+    assert missed.top1 and not missed.pair_found
+    assert "pair not completed" in dict(missed.problems)
+
+
 def test_oracle_maps_the_truth_into_the_libraries_elements_and_coordinate():
     # a contact below -g- and above g+ of the rest position is below -(g- + c) and above
     # g+ - c of a coordinate whose zero is c above rest (module docstring of .oracle)

