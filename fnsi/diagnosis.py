@@ -2158,15 +2158,11 @@ def _partners(first: Candidate, helpful: Sequence[Candidate], problem: Screening
     """What ``first`` is validated together with (:func:`claim_pair`): the proposal at
     another location that complements it best with the poles held, and the best of the
     other ``helpful`` candidates at another location, validated already (the two may be
-    one)."""
+    one: :func:`claim_pair` validates a pair once)."""
     alone = replace(first.element, coefficients=None)
     complement = _complement(problem, alone, proposals)
     validated = next((c for c in helpful if c.location != first.location), None)
-    partners = [o for o in (complement, validated) if o is not None]
-    if len(partners) == 2 and (complement.effect, complement.location) == (
-            validated.effect, validated.location):
-        partners.pop()
-    return partners
+    return [o for o in (complement, validated) if o is not None]
 
 
 @dataclass(frozen=True)
@@ -2224,7 +2220,7 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
     clearance between x0 and x2, each significant alone, 5.70 and 5.83 % against the
     revision's 6.14 %; together 8.45 % as a trial, 2.21 % kept; floor 0.43 %). A pair
     is validated once, whichever of the two found it. Of the pairs whose model passes the
-    claim rule (the parameters of both, one more test per pair for the family-wise level)
+    claim rule (the parameters of both, one more test per pair and one for the kept pair)
     with both coefficients plausible, the one with the lowest validation error makes its
     candidate claimed with the other as its ``partner``: the claim is of the two together,
     so both are added (:attr:`Candidate.elements`). A partner left for the next diagnosis
@@ -2241,7 +2237,8 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
         for other in _partners(first, helpful, problem, proposals):
             pairs.setdefault(frozenset(((first.effect, first.location),
                                         (other.effect, other.location))), (first, other))
-    tests = replace(judge, candidates=judge.candidates + len(pairs))
+    # one more test per pair, and one for the kept pair's second look (family-wise level)
+    tests = replace(judge, candidates=judge.candidates + len(pairs) + 1)
     trials = [t for first, other in pairs.values()
               if (t := _pair_trial(study, revision, first, other, judge, tests)) is not None]
     passed = [t for t in trials if t.test.passed and t.plausible]

@@ -356,7 +356,8 @@ def test_a_helpful_candidate_is_paired_with_its_complement_and_the_best_validate
     """Seed 37 case 3 of the hidden benchmark: a damper to ground at x0 and a clearance
     between x0 and x2, each significant alone and neither enough: the clearance, validated
     already, is the damper's partner besides the proposal that complements it best with
-    the poles held; once, when the two are the same, and never at the damper's own place."""
+    the poles held (claim_pair validates the two once when they are the same), never at the
+    damper's own place."""
     damper = NonlinearElement("quadratic_damping", "x0")
     stop = NonlinearElement("clearance", "x0", "x2", side="positive", gap_positive=1e-5)
     cubic = NonlinearElement("polynomial", "x2", exponent=3.0)
@@ -369,7 +370,7 @@ def test_a_helpful_candidate_is_paired_with_its_complement_and_the_best_validate
     assert _partners(first, [first, here, there], None, []) == [complement, there]
     same = Proposal(Effect.CLEARANCE, Location("x0", "x2"), stop, 0.3)
     monkeypatch.setattr("fnsi.diagnosis._complement", lambda *args: same)
-    assert _partners(first, [first, here, there], None, []) == [same]
+    assert _partners(first, [first, here, there], None, []) == [same, there]
     monkeypatch.setattr("fnsi.diagnosis._complement", lambda *args: None)
     assert _partners(first, [first, here], None, []) == []
 
@@ -380,20 +381,28 @@ def test_a_pair_claim_adds_both_effects(monkeypatch):
     partner was not found (seed 37 case 3 of the hidden benchmark)."""
     damper = NonlinearElement("quadratic_damping", "x0")
     gap = NonlinearElement("clearance", "x0", "x2", gap=1e-3)
+    alone = ClaimTest(6.14, 5.70, 0.43, 1, 9.0, 3.5, True, False)   # significant, not worth it
     first = dataclasses.replace(helpful(Effect.QUADRATIC_DAMPING, Location("x0"), damper),
-                    beats_noise_floor=False, claim=ClaimTest(
-                        6.14, 5.70, 0.43, 1, 9.0, 3.5, True, False))
+                                validation_nrmse_percent=5.70, beats_noise_floor=False,
+                                claim=alone)
     other = dataclasses.replace(first, effect=Effect.CLEARANCE, location=Location("x0", "x2"),
-                    element=gap)
+                                element=gap, validation_nrmse_percent=5.83)
     identified = dataclasses.replace(gap, coefficients=(2.5e4,))
     test = ClaimTest(6.14, 2.21, 0.43, 2, 40.0, 3.6, True, True)
-    monkeypatch.setattr("fnsi.diagnosis._partners", lambda first, *args: [other])
-    monkeypatch.setattr("fnsi.diagnosis._pair_trial", lambda study, revision, a, b, *args: (
-        _Pair(test, a, b, Partner(b.effect, b.location, identified), True)))
-    monkeypatch.setattr("fnsi.diagnosis.PAIR_TRIALS", 1)
+    trials = []
+
+    def pair_trial(study, revision, a, b, *args):
+        trials.append((a, b))
+        return _Pair(test, a, b, Partner(b.effect, b.location, identified), True)
+
+    # each is the other's partner: the pair is validated once, from the better validated
+    monkeypatch.setattr("fnsi.diagnosis._partners",
+                        lambda a, *args: [other if a is first else first])
+    monkeypatch.setattr("fnsi.diagnosis._pair_trial", pair_trial)
     judge = _Judge(6.14, 0.43, None, None, 2, None)
     study = SimpleNamespace(misses_floor=lambda error: error > 2 * 0.43)
     claimed = claim_pair(study, 0, [first, other], judge, None, [])[0]
+    assert trials == [(first, other)]
     assert claimed.convincing and claimed.claim is test
     assert claimed.elements == (damper, identified)
     assert claimed.to_json()["partner"] == {
