@@ -91,7 +91,7 @@ from fnsi.spectra import band_lines, kept_record, output_spectra, period_mean
 from fnsi.stabilisation import macx_matrix, modal_contributions
 from fnsi.stiffness import StiffnessCurve, curve_error_percent, stiffness_curve
 from fnsi.subspace import band_warp, row_basis, stacked_rows, warp_lines
-from fnsi.units import per
+from fnsi.units import ModelUnits, per
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / "cache"
@@ -107,7 +107,7 @@ BAND = (5.0, 50.0)
 DISCARD = 2
 #: Axis units of the SmallSat curves: the model's own (fnsi.smallsat: length unit 1 mm,
 #: force unit 20 N).
-MODEL_UNITS = (LENGTH_UNIT, FORCE_UNIT)
+MODEL_UNITS = ModelUnits(FORCE_UNIT, LENGTH_UNIT, "displacement")
 NC2 = ("NC2w_Z", "NC2b_Z")
 THREE = ("NC2w_Z", "NC2b_Z", "W_Z")
 #: Force and output at the driving point of the single test.
@@ -1087,8 +1087,8 @@ def pair_figure(laws: list[PairLaw]) -> str:
         ax.plot(law.q, law.identified, color="tab:blue", lw=1.2,
                 label=f"identified ({law.error_pct:.1f} %)")
         ax.set_title(f"{law.names[0]} + {law.names[1]} (a = {law.slope:+.2f})")
-        ax.set_xlabel(f"Relative displacement at {law.names[0]} [{MODEL_UNITS[0]}]")
-        ax.set_ylabel(f"Pair force [{MODEL_UNITS[1]}]")
+        ax.set_xlabel(f"Relative displacement at {law.names[0]} [{MODEL_UNITS.length}]")
+        ax.set_ylabel(f"Pair force [{MODEL_UNITS.force}]")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small")
     figure.suptitle("multi-18: force of each mirror pair along its shared motion, "

@@ -1461,8 +1461,8 @@ def _repair_words(repairs: Sequence[str]) -> str:
     return "" if not repairs else f" (its model needed repair to run: {'; '.join(repairs)})"
 
 
-def _refined_shape_words(element: NonlinearElement, evaluation: Evaluation, length: str
-                         ) -> str:
+def _refined_shape_words(element: NonlinearElement, evaluation: Evaluation,
+                         units: ModelUnits) -> str:
     """Where the candidate's refined model put the clearance's contact, or the friction's
     smoothing width, when refinement moved what it was identified from ("" otherwise)."""
     found = evaluation.identified(element)
@@ -1471,10 +1471,10 @@ def _refined_shape_words(element: NonlinearElement, evaluation: Evaluation, leng
     refined = found[1]
     if element.kind == "clearance" and refined.gaps != element.gaps:
         return (f"; its model refined by the simulation error puts contact at "
-                f"{_contact(*refined.gaps, length)} (the revision refines them again)")
+                f"{_contact(*refined.gaps, units.length)} (the revision refines them again)")
     if element.kind == "coulomb_friction" and refined.width != element.width:
         return (f"; its model refined by the simulation error smooths the friction over "
-                f"{_number(refined.width)} {length}/s instead of {_number(element.width)} "
+                f"{_number(refined.width)} {units.velocity} instead of {_number(element.width)} "
                 f"(the revision refines it again)")
     return ""
 
@@ -1497,7 +1497,7 @@ def _explain(proposal: Proposal, element: NonlinearElement, score: LocationScore
                                         f"{proposal.location.phrase}")
     return (f"{_kind_words(proposal, element, units)}: {effect}{floor_words}"
             f"{_repair_words(evaluation.repairs)}"
-            f"{_refined_shape_words(element, evaluation, units.length)}"
+            f"{_refined_shape_words(element, evaluation, units)}"
             f"{_shape_words(proposal, score, units.length)}"
             f"{evidence}{_verdict_words(test)}{doubt}")
 

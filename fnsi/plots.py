@@ -23,7 +23,7 @@ from fnsi.errors import ModelErrors
 from fnsi.nonlinear import NonlinearElement, NonlinearityKind
 from fnsi.stabilisation import PoleClass, StabilisationDiagram
 from fnsi.stiffness import StiffnessCurve
-from fnsi.units import per
+from fnsi.units import ModelUnits
 
 DPI = 100
 #: Characters per line of a warning written in a 5-inch stiffness panel (small font).
@@ -331,7 +331,7 @@ def plot_stiffness(
     *,
     truths: Sequence[NonlinearElement | None] | None = None,
     title: str = "Nonlinear restoring forces",
-    units: tuple[str, str] = ("output unit", "input unit"),
+    units: ModelUnits | None = None,
     warnings: Sequence[str | None] | None = None,
 ) -> bytes:
     """Identified restoring-force curves, with the exact ones when known (Figures 10, 12).
@@ -344,9 +344,9 @@ def plot_stiffness(
         True element (with coefficients) per curve, drawn in black over the same range.
     title : str
         Figure title (wrapped to the figure width).
-    units : (str, str)
-        Length and force units of the data, for the axis labels (velocity: length/s;
-        :meth:`fnsi.units.ModelUnits.curve`).
+    units : ModelUnits, optional
+        Units of the data, for the axis labels (:meth:`fnsi.units.ModelUnits.curve`;
+        default: the placeholders of a displacement record without units).
     warnings : sequence of str or None, optional
         A short warning per curve (None for none), written in red in its panel, whose
         identified curve is then dashed: a curve not to be trusted (e.g. confounded).
@@ -388,8 +388,7 @@ def plot_stiffness(
             knots = np.asarray(element.knots)
             ax.plot(knots, element.basis(knots) @ np.asarray(element.coefficients), "o",
                     mfc="none", color="tab:blue", ms=5, label="knots")
-        length, force = units
-        unit = per(length, "s") if curve.variable == "velocity" else length
+        unit, force = (units or ModelUnits("", "", "displacement")).curve(curve.variable)
         ax.set_xlabel(f"Relative {curve.variable} [{unit}]")
         ax.set_ylabel(f"Restoring force [{force}]")
         ax.set_title(element.name)

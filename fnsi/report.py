@@ -239,7 +239,7 @@ def _figures(result: IdentificationResult, settings: IdentificationSettings,
     if result.stiffness:
         out["stiffness.png"] = plots.plot_stiffness(
             result.stiffness, truths=[_true_element(truth, c.element) for c in result.stiffness],
-            units=(result.units.length, result.units.force),
+            units=result.units,
             warnings=[_confounding(result, c.element) for c in result.stiffness])
     out["macx.png"] = _macx_figure(result, truth)
     return out

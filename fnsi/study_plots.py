@@ -304,5 +304,5 @@ def diagnosis_figures(diagnosis: Diagnosis) -> dict[str, bytes]:
     if diagnosis.curves:
         figures["stiffness.png"] = plot_stiffness(
             list(diagnosis.curves), title="Nonparametric stiffness at the top locations",
-            units=(diagnosis.units.length, diagnosis.units.force))
+            units=diagnosis.units)
     return figures

@@ -86,6 +86,23 @@ def displacement_unit(output_unit: str, quantity: str) -> str:
     return f"{output_unit}{_SECONDS[quantity]}" if output_unit else output_unit
 
 
+def velocity_unit(output_unit: str, quantity: str) -> str:
+    """Unit of the velocities derived from outputs in ``output_unit``.
+
+    "mm/s" of a velocity stays, "m/s^2" of an acceleration gives "m/s", "mm" of a
+    displacement "mm/s"; a unit without the time derivative written in it (volts, g, a
+    placeholder) is a velocity as it is, or gets one second ("V·s" of an acceleration in V)
+    rather than "(V·s^2)/s".
+    """
+    if not output_unit or quantity == "velocity":
+        return output_unit
+    if quantity == "acceleration":
+        pattern = _PER_SECOND[quantity]
+        return (pattern.sub("/s", output_unit) if pattern.search(output_unit)
+                else f"{output_unit}·s")
+    return per(output_unit, "s")
+
+
 @dataclass(frozen=True)
 class ModelUnits:
     """Units of a model identified from one measurement.
@@ -121,6 +138,11 @@ class ModelUnits:
         return displacement_unit(self.output, self.quantity)
 
     @property
+    def velocity(self) -> str:
+        """Unit of the velocities the dissipative bases take (x-dot of Eq. 1-2)."""
+        return velocity_unit(self.output, self.quantity)
+
+    @property
     def frf(self) -> str:
         """Unit of an FRF H = Y / U: output unit per input unit."""
         return per(self.output, self.force)
@@ -137,7 +159,7 @@ class ModelUnits:
         if kind in (NonlinearityKind.CLEARANCE, NonlinearityKind.PIECEWISE_LINEAR):
             return self.length
         if kind == NonlinearityKind.QUADRATIC_DAMPING:
-            return power(per(self.length, "s"), 2)
+            return power(self.velocity, 2)
         return "1"
 
     def coefficient(self, element: NonlinearElement) -> str:
@@ -147,7 +169,7 @@ class ModelUnits:
     def curve(self, variable: str) -> tuple[str, str]:
         """Abscissa and force units of a stiffness (``"displacement"``) or damping
         (``"velocity"``) curve."""
-        x = self.length if variable == "displacement" else per(self.length, "s")
+        x = self.length if variable == "displacement" else self.velocity
         return x, self.force
 
     def to_json(self) -> dict[str, str]:

@@ -82,6 +82,7 @@ from fnsi.nonlinear import NonlinearElement
 from fnsi.screening import MotionRecord, ScreeningProblem
 from fnsi.structure import StructuralModel
 from fnsi.study import Study
+from fnsi.units import ModelUnits
 
 NAMES = ("x1", "x2", "x3", "x4", "x5")
 FS = 1000.0          # Hz: 16 x the band edge, so simulated velocities (central differences
@@ -1112,12 +1113,13 @@ def test_a_candidate_carries_the_gaps_its_trial_was_identified_from():
     element, log_ratio, flatness = _coefficient_quality(evaluation, proposed)
     assert element.gaps == proposed.gaps and element.coefficients == (9.8e3,)
     assert (log_ratio, flatness) == (3.0, 1.5)
-    words = _refined_shape_words(proposed, evaluation, "m")
+    metres = ModelUnits("N", "m", "displacement")
+    words = _refined_shape_words(proposed, evaluation, metres)
     assert "puts contact at -0.0021 and +0.0012 m" in words, words
     # unmoved gaps, and elements without gaps, need no words
-    assert _refined_shape_words(refined, evaluation, "m") == ""
+    assert _refined_shape_words(refined, evaluation, metres) == ""
     cubic = NonlinearElement("polynomial", "x3", exponent=3.0)
-    assert _refined_shape_words(cubic, evaluation, "m") == ""
+    assert _refined_shape_words(cubic, evaluation, metres) == ""
 
 
 def test_a_candidate_carries_the_friction_width_its_trial_was_identified_from():
@@ -1128,9 +1130,10 @@ def test_a_candidate_carries_the_friction_width_its_trial_was_identified_from():
     evaluation = _identified_as(proposed, refined)
     element, _, _ = _coefficient_quality(evaluation, proposed)
     assert element.width == proposed.width and element.coefficients == (9.8e3,)
-    words = _refined_shape_words(proposed, evaluation, "mm")
+    velocity = ModelUnits("N", "mm/s", "velocity")
+    words = _refined_shape_words(proposed, evaluation, velocity)
     assert "smooths the friction over 0.00056 mm/s instead of 0.000323" in words, words
-    assert _refined_shape_words(refined, evaluation, "mm") == ""
+    assert _refined_shape_words(refined, evaluation, velocity) == ""
 
 
 def test_a_kept_trial_is_the_revision_the_study_would_add():

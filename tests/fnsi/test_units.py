@@ -52,6 +52,25 @@ def test_derived_units_of_velocity_acceleration_and_volts():
     assert ModelUnits("", "", "displacement").coefficient(CUBIC) == "input unit/output unit^3"
 
 
+@pytest.mark.parametrize("output, quantity, velocity, damper", [
+    ("mm", "displacement", "mm/s", "N/(mm/s)^2"),
+    ("mm/s", "velocity", "mm/s", "N/(mm/s)^2"),
+    ("m/s^2", "acceleration", "m/s", "N/(m/s)^2"),
+    ("m/s²", "acceleration", "m/s", "N/(m/s)^2"),
+    ("V", "velocity", "V", "N/V^2"),                 # not N/((V·s)/s)^2
+    ("g", "acceleration", "g·s", "N/(g·s)^2"),        # not N/((g·s^2)/s)^2
+    ("", "acceleration", "output unit·s", "N/(output unit·s)^2"),
+])
+def test_velocity_units_carry_one_derivative_less_than_written(output, quantity, velocity,
+                                                                damper):
+    """A damper's velocity and its coefficient read in the simplest unit: accelerations in
+    "output unit" gave "input unit/((output unit·s^2)/s)^2" (seed 37 case 3)."""
+    units = ModelUnits("N", output, quantity)
+    assert units.velocity == velocity
+    assert units.curve("velocity") == (velocity, "N")
+    assert units.coefficient(NonlinearElement("quadratic_damping", "x1")) == damper
+
+
 def test_smallsat_presets_declare_mm_and_units_of_20_newtons():
     """The model's force unit is kappa * delta = 2e4 N/m x 1 mm = 20 N (fnsi.smallsat):
     the WEMS stops read in mm and their slopes in 20 N/mm."""
