@@ -430,7 +430,7 @@ class Study:
 
         study = Study.create(estimation, validation, IdentificationSettings(order=8, ...))
         diagnosis = study.diagnose()
-        study.add_revision(add=[diagnosis.candidates[0].element], note="clearance")
+        study.add_revision(add=diagnosis.candidates[0].elements)   # with a pair, both
         study.save("my-study")
     """
 

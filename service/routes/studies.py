@@ -278,8 +278,9 @@ def create_diagnosis(request: DiagnosisRequest, record: OwnStudyDep, store: Stor
                      queue: QueueDep, studies: StudiesDep) -> Job:
     """Queue a diagnosis: which physical effect the revision lacks, and where. Its result
     lists `candidates`, best first, each with `effect`, `element` (ready to POST as a
-    revision's `add`), `validation_nrmse_percent`, `error_reduction_factor` and
-    `explanation`; its artefacts show stiffness curves at the top locations."""
+    revision's `add`, beside its `partner`'s element when it is claimed with one),
+    `validation_nrmse_percent`, `error_reduction_factor` and `explanation`; its artefacts
+    show stiffness curves at the top locations."""
     _check_alive(studies, record)
     return Job.of(_submit(store, queue, record, "study_diagnosis",
                           request.model_dump(mode="json")))
