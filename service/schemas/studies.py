@@ -182,10 +182,11 @@ class Candidate(BaseModel):
         "validated.")
     repairs: list[str] = Field(default_factory=list, description=(
         "What was changed so that its model could be simulated."))
-    partner: Partner | None = Field(
+    partner: Partner | Location | None = Field(
         None, description="The second effect this candidate is claimed together with "
         "(neither was worth its parameters alone; claim then tests both added together): "
-        "POST both elements as one revision's `add`. Null when judged alone.")
+        "POST both elements as one revision's `add`. Null when judged alone. Diagnoses "
+        "stored before 2026-12 give only its location: diagnose again for its element.")
 
 
 class ClaimTestSummary(BaseModel):

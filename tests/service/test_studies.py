@@ -19,9 +19,12 @@ import time
 
 import pytest
 
+from fnsi.diagnosis import Effect, Location, Partner
 from fnsi.measurement import Measurement
+from fnsi.nonlinear import NonlinearElement
 from service.deps import PUBLIC_OWNER
 from service.pagination import encode_cursor
+from service.schemas import studies as schemas
 from service.store import Store
 from service.study_store import StudyStore
 from tests.chromium import CHROMIUM, MISSING, render
@@ -322,3 +325,19 @@ def test_the_study_lock_admits_one_job_at_a_time(tmp_path, database):
     thread.join()
     assert events == ["first released", "second entered"]
     assert waits  # the waiting side reported (lease renewal, cancel checks) while it waited
+
+
+def test_a_candidates_partner_is_served_as_the_element_to_add_and_an_older_one_kept():
+    """A pair claim's partner reads as the effect, place and element to POST beside the
+    candidate's; a diagnosis stored when the partner was only a place is still served."""
+    clearance = NonlinearElement("clearance", "x0", "x2", gap=1e-3, coefficients=(2.5e4,))
+    stored = {"effect": "quadratic_damping", "order": 10, "validation_nrmse_percent": 2.21,
+              "error_reduction_factor": 2.8, "beats_noise_floor": True, "explanation": "",
+              "element": NonlinearElement("quadratic_damping", "x0",
+                                          coefficients=(1.4e4,)).to_json()}
+    partner = Partner(Effect.CLEARANCE, Location("x0", "x2"), clearance).to_json()
+    served = schemas.Candidate(**stored, partner=partner).partner
+    assert isinstance(served, schemas.Partner)
+    assert served.element.model_dump(exclude_none=True)["gap"] == 1e-3
+    older = schemas.Candidate(**stored, partner={"dof": "x0", "ref": "x2"}).partner
+    assert isinstance(older, schemas.Location) and older.ref == "x2"
