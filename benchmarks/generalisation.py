@@ -91,12 +91,12 @@ that the effect acts in both records); simulated to periodic steady state by sci
 library's simulator) and sampled through an ideal anti-aliasing filter, as a lab's
 acquisition does; validation record: another random-phase realisation. The library
 runs the study loop as a user would with its defaults (`Study.create` with only the band,
-order `"auto"`; `diagnose`; the top candidate added when the diagnosis finds one; a
-second round), every answer recorded before the truth is read. Kind classes: cubic
-(hardening or softening), quadratic stiffness, two-sided clearance (symmetric or
-asymmetric), one-sided stop (side must match), Coulomb friction, quadratic damping; a
-location is the pair of DOFs or a DOF and the ground. Timings measured on a shared,
-heavily loaded 2-core machine (two cases at a time)."""
+order `"auto"`; `diagnose`; the top candidate added, with its partner when claimed with
+one, when the diagnosis finds one; a second round), every answer recorded before the
+truth is read. Kind classes: cubic (hardening or softening), quadratic stiffness,
+two-sided clearance (symmetric or asymmetric), one-sided stop (side must match), Coulomb
+friction, quadratic damping; a location is the pair of DOFs or a DOF and the ground.
+Timings measured on a shared, heavily loaded 2-core machine (two cases at a time)."""
 
 ORACLE_HEADER = """# Generalisation benchmark, hidden-effect part: the loop against the truth
 
