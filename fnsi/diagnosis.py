@@ -2178,8 +2178,8 @@ class _Pair:
     other: Candidate | Proposal
     partner: Partner
     plausible: bool
-    evaluation: Evaluation | None = None
-    treatment: Treatment = Treatment.FNSI
+    evaluation: Evaluation
+    treatment: Treatment
 
 
 def _pair_trial(study: Study, revision: int, first: Candidate,
@@ -2205,6 +2205,14 @@ def _pair_trial(study: Study, revision: int, first: Candidate,
                         zip((first.effect, other.effect), identified, strict=True))
     return _Pair(test, first, other, Partner(other.effect, other.location, identified[1][0]),
                  plausible, evaluation, treatment)
+
+
+def _together_words(other: Candidate | Proposal, test: ClaimTest) -> str:
+    """The words a candidate claimed with ``other`` ends with; ``test`` is the claim test
+    of adding ``other`` too (:func:`claim_pair`, :func:`completed_claim`)."""
+    return (f"; claimed together with {other.effect.value.replace('_', ' ')} "
+            f"{other.location.phrase}: with both the validation error falls from "
+            f"{test.before:.3g} % to {test.after:.3g} %{_verdict_words(test)}; add both")
 
 
 def _helpful(candidates: Sequence[Candidate]) -> list[Candidate]:
@@ -2258,12 +2266,8 @@ def completed_claim(study: Study, revision: int, candidates: Sequence[Candidate]
         return list(candidates)
     both = tests.against(pair.treatment).test(pair.evaluation,
                                               top.parameters + other.parameters)
-    words = (f"; claimed together with {other.effect.value.replace('_', ' ')} "
-             f"{other.location.phrase}, which lowers the validation error from "
-             f"{pair.test.before:.3g} % to {pair.test.after:.3g} %"
-             f"{_verdict_words(pair.test)}; add both")
     claimed = replace(top, claim=both, partner=pair.partner,
-                      explanation=top.explanation + words)
+                      explanation=top.explanation + _together_words(other, pair.test))
     return [claimed, *candidates[1:]]
 
 
@@ -2319,11 +2323,7 @@ def claim_pair(study: Study, revision: int, candidates: Sequence[Candidate], jud
     if not passed:
         return list(candidates)
     pair = min(passed, key=lambda t: t.test.after)
-    other = pair.other
-    words = (f"; claimed together with {other.effect.value.replace('_', ' ')} "
-             f"{other.location.phrase}: with both the validation error falls from "
-             f"{pair.test.before:.3g} % to {pair.test.after:.3g} %"
-             f"{_verdict_words(pair.test)}; add both")
+    words = _together_words(pair.other, pair.test)
     claimed = replace(pair.first, beats_noise_floor=True, claim=pair.test,
                       partner=pair.partner, explanation=pair.first.explanation + words)
     return [claimed if c is pair.first else c for c in candidates]

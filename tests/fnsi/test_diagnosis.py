@@ -395,7 +395,8 @@ def test_a_pair_claim_adds_both_effects(monkeypatch):
 
     def pair_trial(study, revision, a, b, *args):
         trials.append((a, b))
-        return _Pair(test, a, b, Partner(b.effect, b.location, identified), True)
+        return _Pair(test, a, b, Partner(b.effect, b.location, identified), True, None,
+                     Treatment.FNSI)
 
     # each is the other's partner: the pair is validated once, from the better validated
     monkeypatch.setattr("fnsi.diagnosis._partners",
