@@ -232,6 +232,21 @@ def test_repeated_corrections_reach_the_same_steady_state_in_fewer_periods(force
                                atol=1e-7 * np.abs(marched.y).max())
 
 
+def test_corrections_that_do_not_settle_give_way_to_marching():
+    # 10 % damping: a period of marching leaves exp(-2 pi 0.1 5 0.5) = 0.21 of a
+    # transient, while the fixed-point steps for a cubic force this strong hardly
+    # contract (changes 0.45, 0.12, 0.11, 0.11, 0.10, 0.085): the corrected periods are
+    # judged unable to reach 1e-10 in the periods left, and the marched steady state is
+    # returned instead (the same run, so the same numbers)
+    u0 = np.random.default_rng(0).normal(size=3000)
+    u = 2.0 * (u0 * 0.06 / np.max(np.abs(simulate(_sdof(0.0, zeta=0.1), u0))))[:500]
+    model = _sdof(K3, zeta=0.1)
+    marched = simulate_periodic(model, u, tolerance=1e-10)
+    corrected = simulate_periodic(model, u, tolerance=1e-10, corrections=30)
+    assert corrected.periods_run == marched.periods_run
+    np.testing.assert_allclose(corrected.y, marched.y, rtol=0, atol=0)
+
+
 def test_corrections_stop_on_a_periodic_solution_the_dynamics_leave(force):
     # a softening cubic that escapes in the fourth period when marched from rest: the
     # corrections move the state towards a periodic solution (it escapes a period later),
