@@ -162,13 +162,10 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _print_drawn(case: str, truth: dict) -> None:
-    """Progress of the hidden part's generation: what was drawn, or why not."""
-    if "skipped" in truth:
-        print(f"{case}: skipped ({truth['skipped']})", flush=True)
-        return
-    plan = truth["plan"]
-    print(f"{case}: {', '.join(plan['kinds']) or 'no effect'}, linear error "
-          f"{plan['linear_error_pct']:.3g} %", flush=True)
+    """Progress of the hidden part's generation, without what was drawn: whoever runs
+    the benchmark answers blind too (the kinds, and the linear error that tells a case
+    without an effect, are read in the score phase)."""
+    print(f"{case}: {'skipped' if 'skipped' in truth else 'drawn'}", flush=True)
 
 
 def hidden(args: argparse.Namespace) -> None:
