@@ -38,6 +38,7 @@ import scipy.linalg
 
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
+from fnsi.reciprocity import force_columns, location_column
 from fnsi.spectra import displacement_velocity, kept_record, without_quiet_low_lines
 from fnsi.statespace import StateSpaceModel
 from fnsi.subspace import transfer_rows
@@ -117,8 +118,12 @@ class ScreeningProblem:
     """
 
     def __init__(self, measurement: Measurement, model: StateSpaceModel,
-                 band: tuple[float, float], discard_periods: int) -> None:
+                 band: tuple[float, float], discard_periods: int,
+                 driving_point: tuple[str, str] | None = None) -> None:
         data = measurement.select(inputs=model.input_names, outputs=model.output_names)
+        # where a force at each measured DOF enters (fnsi.reciprocity), with a driving point
+        self.force_columns = (None if driving_point is None
+                              else force_columns(model, driving_point))
         kept = data.periods - discard_periods
         periods = without_quiet_low_lines(kept_record(data.y, data.periods, discard_periods),
                                           kept, data.fs, data.quantity, band[0])
@@ -162,8 +167,9 @@ class ScreeningProblem:
         y = y_lines * self.weights                                             # S Y, (R, N, l)
         # the model's own rate: a refined revision may run at a multiple of fs
         z = np.exp(2j * np.pi * self.frequencies / model.fs)
-        w = transfer_rows(model.A, model.C * self.weights[:, None], z)         # S C (z I - A)^-1
-        w = w @ whitening(w)                                                   # (N, l, r)
+        transfer = transfer_rows(model.A, model.C * self.weights[:, None], z)  # S C (zI - A)^-1
+        self._transfer = transfer                                              # (N, l, states)
+        w = transfer @ whitening(transfer)                                     # (N, l, r)
         n = w.shape[2]   # the unknowns of a column of B^e from here on: r whitened states
         self._w, self._y = w, y
         self._gram_lines = np.einsum("kli,klj->kij", w.conj(), w).reshape(z.size, n * n)
@@ -190,6 +196,7 @@ class ScreeningProblem:
         self._base_inverse = _pseudo_inverse(self._gram(base, base))
         self._base_solution = self._base_inverse @ self._base_rhs
         self.base_cost = float(self.output_energy - self._base_solution @ self._base_rhs)
+        self._base_residual: np.ndarray | None = None
 
     def with_spring(self, dof: str, ref: str | None) -> ScreeningProblem:
         """The problem with a linear spring at ``dof - ref`` added to the base (once per
@@ -287,6 +294,33 @@ class ScreeningProblem:
                  + np.einsum("rka,an->rkn", columns, theta.reshape(-1, n)))
         residual = self._y - np.einsum("kln,rkn->rkl", self._w, force)
         return float(np.sum(np.abs(residual) ** 2))
+
+    def directed_reduction(self, columns: np.ndarray, dof: str, ref: str | None) -> float:
+        """Fraction of the base's residual that basis spectra ``columns`` (R, N, s)
+        explain acting through the input column of a force between ``dof`` and ``ref``
+        (None: ground) that reciprocity gives (:mod:`fnsi.reciprocity`), one real
+        coefficient each, in [0, 1]; NaN without a driving point.
+
+        Fitted to what the base leaves (its columns held): a score that ranks places by
+        how well a force *there* explains the residual, not by how much n free unknowns
+        per column can absorb (:meth:`fit`)."""
+        if self.force_columns is None:
+            return np.nan
+        direction = location_column(self.force_columns, dof, ref)
+        if self._base_residual is None:
+            force = np.einsum("rka,an->rkn", self._base,
+                              self._base_solution.reshape(-1, self.order))
+            self._base_residual = self._y - np.einsum("kln,rkn->rkl", self._w, force)
+        response = self._transfer @ direction                                  # (N, l)
+        regressors = (response[None, :, :, None] * columns[:, :, None, :]).reshape(
+            -1, columns.shape[2])
+        target = self._base_residual.ravel()
+        stacked = np.concatenate([regressors.real, regressors.imag])
+        rhs = np.concatenate([target.real, target.imag])
+        coefficients = np.linalg.lstsq(stacked, rhs, rcond=None)[0]
+        left = float(np.sum((rhs - stacked @ coefficients) ** 2))
+        energy = float(rhs @ rhs)
+        return min(max(0.0, 1.0 - left / energy), 1.0) if energy > 0.0 else 0.0
 
     def fit_rank_one(self, columns: np.ndarray, iterations: int = 6
                      ) -> tuple[float, np.ndarray]:
