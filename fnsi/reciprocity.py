@@ -40,6 +40,11 @@ UNSEEN_MODE = 1e-6
 """A mode whose output coefficient at the driving point is below this fraction of the
 largest one's is not seen there: its reciprocal column is left out (0/0)."""
 
+MAX_MODAL_CONDITION = 1e10
+"""Largest condition number of A's eigenvector matrix for which the modal coordinates
+are trusted: nearly coincident poles with nearly parallel eigenvectors (a Jordan block
+in the limit) leave no modal split of the columns."""
+
 
 def force_columns(model: StateSpaceModel, driving_point: tuple[str, str]
                   ) -> dict[str, np.ndarray]:
@@ -63,13 +68,18 @@ def force_columns(model: StateSpaceModel, driving_point: tuple[str, str]
     Raises
     ------
     ValueError
-        The input or output of ``driving_point`` is not the model's.
+        The input or output of ``driving_point`` is not the model's, or A has no
+        well-conditioned eigenvector basis (:data:`MAX_MODAL_CONDITION`).
     """
     force, point = driving_point
     if force not in model.input_names or point not in model.output_names:
         raise ValueError(f"driving point {driving_point} is not among the model's inputs "
                          f"{list(model.input_names)} and outputs {list(model.output_names)}")
     _, vectors = np.linalg.eig(model.A)
+    condition = np.linalg.cond(vectors)
+    if not condition <= MAX_MODAL_CONDITION:
+        raise ValueError(f"the model's eigenvectors are too close to parallel (condition "
+                         f"number {condition:.3g}) for modal force columns")
     c = model.C @ vectors                                                   # (l, n)
     b = np.linalg.solve(vectors, model.B[:, list(model.input_names).index(force)])
     at_point = c[list(model.output_names).index(point)]

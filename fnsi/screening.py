@@ -30,6 +30,7 @@ averaged period ``(realisations, period_length, channels)``.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 from dataclasses import dataclass
 
@@ -122,8 +123,11 @@ class ScreeningProblem:
                  driving_point: tuple[str, str] | None = None) -> None:
         data = measurement.select(inputs=model.input_names, outputs=model.output_names)
         # where a force at each measured DOF enters (fnsi.reciprocity), with a driving point
-        self.force_columns = (None if driving_point is None
-                              else force_columns(model, driving_point))
+        # and modes that separate (else the free columns alone screen)
+        self.force_columns = None
+        if driving_point is not None:
+            with contextlib.suppress(ValueError):
+                self.force_columns = force_columns(model, driving_point)
         kept = data.periods - discard_periods
         periods = without_quiet_low_lines(kept_record(data.y, data.periods, discard_periods),
                                           kept, data.fs, data.quantity, band[0])

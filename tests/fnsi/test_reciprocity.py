@@ -56,3 +56,12 @@ def test_an_unknown_driving_point_is_refused():
     A, B, C = _chain(np.diag([2.0, 3.0, 1.0]))
     with pytest.raises(ValueError, match="driving point"):
         force_columns(_model(A, B, C, driven=0), ("F_x0", "x5"))
+
+
+def test_a_model_without_separable_modes_gives_no_columns():
+    # a Jordan block: one double pole with one eigenvector, no modal split of B
+    model = StateSpaceModel(A=np.array([[0.9, 1.0], [0.0, 0.9]]), B=np.array([[0.0], [1.0]]),
+                            C=np.eye(2), D=np.zeros((2, 1)), fs=FS, input_names=("F_x0",),
+                            output_names=("x0", "x1"))
+    with pytest.raises(ValueError, match="eigenvectors"):
+        force_columns(model, ("F_x0", "x0"))
