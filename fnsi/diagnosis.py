@@ -279,7 +279,7 @@ class LocationScore:
         for locations not refined.
     proxy_reduction : float
         Fraction of the fixed-pole residual the cheap first score explains [-]
-        (:func:`_proxy_cost`: each law with its own B^e column).
+        (:func:`_generic_columns`, each law with its own B^e column).
     directed_reduction : float
         Fraction of the residual the same laws explain acting through the force
         direction reciprocity gives the location (:meth:`fnsi.screening.
@@ -577,12 +577,6 @@ def _generic_columns(problem: ScreeningProblem, location: Location) -> np.ndarra
                           axis=2)
 
 
-def _proxy_cost(problem: ScreeningProblem, location: Location) -> float:
-    """Cheap first score: linear spring and the generic laws, each with its own B^e
-    column."""
-    return problem.fit(_generic_columns(problem, location))[0]
-
-
 def _fit_with_linear(problem: ScreeningProblem, element: NonlinearElement) -> float:
     """Fixed-pole cost of an element plus a linear spring at its location.
 
@@ -603,7 +597,8 @@ def screen_locations(problem: ScreeningProblem, locations: Sequence[Location],
                      ) -> tuple[LocationScore, ...]:
     """Stage 1: score every location, best first.
 
-    All locations get a cheap score (:func:`_proxy_cost`); the best ``refine`` are then
+    All locations get a cheap score (:func:`_generic_columns`, each law with its own
+    B^e column); the best ``refine`` are then
     scored with the nonparametric spline and the velocity functions acting through one
     force (rank-one B^e, :meth:`ScreeningProblem.fit_rank_one`), which also gives the
     spline shape of the force. Refined locations come first. With a driving point the
@@ -657,7 +652,7 @@ def kind_locations(scores: Sequence[LocationScore], top: int) -> list[LocationSc
     """Locations whose kinds stage 2 compares, in screening order.
 
     The best ``top``; the best ``top`` by the cheap first score (each law with its own
-    B^e column, :func:`_proxy_cost`), since the rank-one spline of a refined score
+    B^e column, :func:`_generic_columns`), since the rank-one spline of a refined score
     shares one column among the linear spring and the laws and, where the two disagree,
     neither is the better guide (on the generalisation benchmark's seed-22 cases 15 and
     37 the true place of a damper and of a quadratic spring ranked first by the first

@@ -293,11 +293,18 @@ class ScreeningProblem:
         ill-conditioned, e.g. a revision of high order fitted on few lines: costs below
         zero, reductions of 20 times the residual)."""
         base = self._base_solution - self._base_inverse @ cross @ theta
-        n = self.order
-        force = (np.einsum("rka,an->rkn", self._base, base.reshape(-1, n))
-                 + np.einsum("rka,an->rkn", columns, theta.reshape(-1, n)))
-        residual = self._y - np.einsum("kln,rkn->rkl", self._w, force)
+        residual = self._residual(base, columns, theta)
         return float(np.sum(np.abs(residual) ** 2))
+
+    def _residual(self, base: np.ndarray, columns: np.ndarray | None = None,
+                  theta: np.ndarray | None = None) -> np.ndarray:
+        """Weighted output residual (R, N, l) of the base regressors with unknowns
+        ``base`` and, if given, ``columns`` with ``theta`` (flattened (p * order,))."""
+        n = self.order
+        force = np.einsum("rka,an->rkn", self._base, base.reshape(-1, n))
+        if columns is not None:
+            force = force + np.einsum("rka,an->rkn", columns, theta.reshape(-1, n))
+        return self._y - np.einsum("kln,rkn->rkl", self._w, force)
 
     def directed_reduction(self, columns: np.ndarray, dof: str, ref: str | None) -> float:
         """Fraction of the base's residual that basis spectra ``columns`` (R, N, s)
@@ -312,9 +319,7 @@ class ScreeningProblem:
             return np.nan
         direction = location_column(self.force_columns, dof, ref)
         if self._base_residual is None:
-            force = np.einsum("rka,an->rkn", self._base,
-                              self._base_solution.reshape(-1, self.order))
-            self._base_residual = self._y - np.einsum("kln,rkn->rkl", self._w, force)
+            self._base_residual = self._residual(self._base_solution)
         response = self._transfer @ direction                                  # (N, l)
         regressors = (response[None, :, :, None] * columns[:, :, None, :]).reshape(
             -1, columns.shape[2])
