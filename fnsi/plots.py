@@ -231,11 +231,17 @@ def plot_frf(
         h_meas = measured[:, outputs.index(out), inputs.index(inp)]
         h_model = model[:, outputs.index(out), inputs.index(inp)]
         magnitude, phase = axes[0, column], axes[1, column]
-        magnitude.semilogy(frequencies, np.abs(h_meas), color="k", lw=1.0, label="measured")
-        magnitude.semilogy(frequencies, np.abs(h_model), color="tab:blue", lw=1.2, ls="--",
-                           label="model")
-        magnitude.semilogy(frequencies, np.abs(h_meas - h_model), color="tab:red", lw=0.8,
-                           alpha=0.8, label="difference")
+        curves = (("measured", np.abs(h_meas), {"color": "k", "lw": 1.0}),
+                  ("model", np.abs(h_model), {"color": "tab:blue", "lw": 1.2, "ls": "--"}),
+                  ("difference", np.abs(h_meas - h_model),
+                   {"color": "tab:red", "lw": 0.8, "alpha": 0.8}))
+        magnitude.set_yscale("log")
+        # a curve with no finite positive value (an overflowed record) has no log scale
+        drawn = [magnitude.plot(frequencies, values, label=label, **style)
+                 for label, values, style in curves if np.any(np.isfinite(values) & (values > 0))]
+        if not drawn:
+            magnitude.text(0.5, 0.5, "no finite FRF magnitude to draw", ha="center",
+                           va="center", transform=magnitude.transAxes)
         magnitude.set_title(f"{out} / {inp}")
         magnitude.set_ylabel(f"|H| [{unit}]")
         magnitude.grid(True, which="both", alpha=0.3)
@@ -246,7 +252,8 @@ def plot_frf(
         phase.set_xlabel("Frequency [Hz]")
         phase.set_yticks([-180, -90, 0, 90, 180])
         phase.grid(True, alpha=0.3)
-    axes[0, 0].legend(fontsize="small")
+    if axes[0, 0].get_legend_handles_labels()[0]:
+        axes[0, 0].legend(fontsize="small")
     figure.suptitle(title)
     return png_bytes(figure)
 
