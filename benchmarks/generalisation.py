@@ -62,10 +62,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # this checkout's fnsi and benchmarks, not an installed copy
 
 from benchmarks.generalisation import hidden_scoring  # noqa: E402
-from benchmarks.generalisation.blind import read_index  # noqa: E402
+from benchmarks.generalisation.blind import answer_path, read_index  # noqa: E402
 from benchmarks.generalisation.cases import generate  # noqa: E402
 from benchmarks.generalisation.hidden import generate_hidden  # noqa: E402
 from benchmarks.generalisation.oracle import oracle_report, run_oracle  # noqa: E402
+from benchmarks.generalisation.provenance import provenance_words  # noqa: E402
 from benchmarks.generalisation.runner import run  # noqa: E402
 from benchmarks.generalisation.scoring import report, score_all, summary  # noqa: E402
 
@@ -193,8 +194,12 @@ def hidden(args: argparse.Namespace) -> None:
         scratch = args.smoke or args.noise_free or args.phase != "all"
         target = args.results or (root / "generalisation_hidden.md" if scratch
                                   else HIDDEN_RESULTS)
+        index = read_index(root)
+        answers = {case: json.loads(answer_path(root, case).read_text())
+                   for case in index["cases"]}
         target.write_text(hidden_scoring.report(scores, seed, HIDDEN_HEADER,
-                                                read_index(root).get("skipped")))
+                                                index.get("skipped"),
+                                                provenance_words(index, answers)))
         print(f"table written to {target}")
         print(json.dumps(hidden_scoring.summary(scores)))
     if args.phase == "oracle":

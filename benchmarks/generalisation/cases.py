@@ -33,6 +33,7 @@ import numpy as np
 
 from benchmarks.generalisation import synthesis
 from benchmarks.generalisation.blind import fresh_cases_dir, truth_path, write_json
+from benchmarks.generalisation.provenance import file_digest
 from benchmarks.generalisation.structures import (
     TOPOLOGIES,
     Structure,
@@ -253,5 +254,7 @@ def generate(root, seed: int, count: int, *, noise_free: bool = False) -> list[s
         ids.append(case)
         truths[case] = truth
     write_json(truth_path(root), {"seed": seed, "cases": truths})
-    write_json(directory / "index.json", {"seed": seed, "count": count, "cases": ids})
+    write_json(directory / "index.json", {
+        "seed": seed, "count": count, "cases": ids,
+        "digests": {case: file_digest(directory / f"{case}.npz") for case in ids}})
     return ids

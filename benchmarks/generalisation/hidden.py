@@ -50,6 +50,7 @@ from benchmarks.generalisation.cases import (
     structure_json,
 )
 from benchmarks.generalisation.integration import periodic_steady_state
+from benchmarks.generalisation.provenance import file_digest
 from benchmarks.generalisation.structures import GROUND, Element, log_uniform
 
 KINDS = ("cubic_hardening", "cubic_softening", "quadratic", "clearance_symmetric",
@@ -405,6 +406,7 @@ def generate_hidden(root, seed: int, count: int, *, noise_free: bool = False,
                 progress(case, truth)
     drawn = [case for case in ids if case in truths]
     write_json(truth_path(root), {"seed": seed, "part": "hidden", "cases": truths})
-    write_json(directory / "index.json", {"seed": seed, "count": count, "part": "hidden",
-                                          "cases": drawn, "skipped": skipped})
+    write_json(directory / "index.json", {
+        "seed": seed, "count": count, "part": "hidden", "cases": drawn, "skipped": skipped,
+        "digests": {case: file_digest(directory / f"{case}.npz") for case in drawn}})
     return drawn

@@ -372,13 +372,17 @@ def _row(label: str, group: list[HiddenScore]) -> str:
 
 
 def report(scores: list[HiddenScore], seed: int, header: str,
-           skipped: dict[str, str] | None = None) -> str:
+           skipped: dict[str, str] | None = None, provenance: str = "") -> str:
     """The results table in Markdown: totals, breakdowns, failure categories, failures;
-    ``skipped``: cases the generator could not draw and why (the index's "skipped")."""
+    ``skipped``: cases the generator could not draw and why (the index's "skipped");
+    ``provenance``: the case files' and the machine's paragraph
+    (:func:`.provenance.provenance_words`)."""
     head = summary(scores)
     lines = [header, "", f"Seed {seed}, {head['cases']} cases. Headline: `{json.dumps(head)}` "
              "(targets: top-1 >= 95 %, floor reached >= 90 %, false alarms <= 2 %, pairs "
              ">= 90 %, nothing found above the floor: 0).", ""]
+    if provenance:
+        lines += [provenance, ""]
     if skipped:
         lines += [f"Not drawn ({len(skipped)}, effects that could not be sized into the "
                   "band, not scored): " + "; ".join(f"{c}: {r}" for c, r in

@@ -32,6 +32,7 @@ from benchmarks.generalisation.blind import (
     read_index,
     write_json,
 )
+from benchmarks.generalisation.provenance import file_digest, machine
 from fnsi.errors import json_float
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.measurement import Measurement
@@ -148,7 +149,8 @@ def _answer_case(task: tuple[Path, str, bool]) -> tuple[str, dict]:
     root, case, hidden = task
     with blindfold(root):
         path = cases_dir(root) / f"{case}.npz"
-        result = {"case": case, **(answer_study(path) if hidden else answer(path))}
+        result = {"case": case, **(answer_study(path) if hidden else answer(path)),
+                  "provenance": {"digest": file_digest(path), "machine": machine()}}
         write_json(answer_path(root, case), result)
     return case, result
 
