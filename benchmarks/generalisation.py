@@ -62,7 +62,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # this checkout's fnsi and benchmarks, not an installed copy
 
 from benchmarks.generalisation import hidden_scoring  # noqa: E402
-from benchmarks.generalisation.blind import answer_path, read_index  # noqa: E402
+from benchmarks.generalisation.blind import read_answers, read_index  # noqa: E402
 from benchmarks.generalisation.cases import generate  # noqa: E402
 from benchmarks.generalisation.hidden import generate_hidden  # noqa: E402
 from benchmarks.generalisation.oracle import oracle_report, run_oracle  # noqa: E402
@@ -195,8 +195,7 @@ def hidden(args: argparse.Namespace) -> None:
         target = args.results or (root / "generalisation_hidden.md" if scratch
                                   else HIDDEN_RESULTS)
         index = read_index(root)
-        answers = {case: json.loads(answer_path(root, case).read_text())
-                   for case in index["cases"]}
+        answers = read_answers(root, index["cases"])
         target.write_text(hidden_scoring.report(scores, seed, HIDDEN_HEADER,
                                                 index.get("skipped"),
                                                 provenance_words(index, answers)))

@@ -170,9 +170,9 @@ class Coefficient:
         mu_j(omega), in force per basis unit (e.g. N/m for a clearance); None when not
         identifiable from the channels given (see ``reason``).
     method : str
-        "driving point" (a force at a DOF of the element: its FRF column is the
-        element's), "reciprocity" (forces elsewhere: the rows of their driving points,
-        by Maxwell-Betti reciprocity) or "none".
+        "driving point" (a force at a DOF of the element, paper IV.A), "reciprocity"
+        (forces elsewhere: the rows of their driving points, by Maxwell-Betti
+        reciprocity) or "none".
     reason : str or None
         Why the coefficient is not identifiable, when ``values`` is None.
     weights : ndarray, shape (N,), or None
@@ -416,7 +416,7 @@ def nonlinear_coefficients(model: StateSpaceModel, frequencies: np.ndarray,
     for index, element in enumerate(model.elements):
         cols = range(column, column + element.n_basis)
         column += element.n_basis
-        mu, h_power, method, reason = _element_coefficients(model, frequencies, He, element,
+        mu, h_power, method, reason = _element_coefficients(model, He, element,
                                                             cols, outputs, points)
         coefficients.extend(
             Coefficient(name, index, j, frequencies, None if mu is None else mu[j], method,
@@ -425,7 +425,7 @@ def nonlinear_coefficients(model: StateSpaceModel, frequencies: np.ndarray,
     return tuple(coefficients)
 
 
-def _element_coefficients(model, frequencies, He, element, cols, outputs, points):
+def _element_coefficients(model, He, element, cols, outputs, points):
     """(mu (n_basis, N) or None, ||H b_j||^2 (N,) or None, method, reason) of one element;
     see nonlinear_coefficients."""
     dof = outputs.get(element.dof)

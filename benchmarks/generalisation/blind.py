@@ -101,6 +101,11 @@ def require_answers(root: Path) -> list[str]:
     return cases
 
 
+def read_answers(root: Path, cases: list[str]) -> dict[str, dict]:
+    """The recorded answers of ``cases`` (phase 2's output), by case id."""
+    return {case: json.loads(answer_path(root, case).read_text()) for case in cases}
+
+
 def write_json(path: Path, value: dict) -> None:
     """Write ``value`` as JSON, creating the directory; atomic (a partial answer never
     counts as recorded)."""

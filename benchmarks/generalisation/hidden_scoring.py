@@ -44,8 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.generalisation.blind import (
-    answer_path,
     cases_dir,
+    read_answers,
     require_answers,
     truth_path,
 )
@@ -311,7 +311,7 @@ def score_hidden(root: Path, progress: Callable[[str], None] | None = None,
                  ) -> list[HiddenScore]:
     """Score every case of ``root`` (phase 3): refuses until every answer is on disk."""
     cases = require_answers(root)
-    answers = {c: json.loads(answer_path(root, c).read_text()) for c in cases}
+    answers = read_answers(root, cases)
     truth = json.loads(truth_path(root).read_text())["cases"]
     if progress is not None:
         progress(f"scoring {len(cases)} answers")

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize
 
-from benchmarks.generalisation.blind import answer_path, require_answers, truth_path
+from benchmarks.generalisation.blind import read_answers, require_answers, truth_path
 
 FREQUENCY_TOLERANCE = 0.005
 DAMPING_TOLERANCE = 0.10
@@ -185,7 +185,7 @@ def _miss(mode: dict, f: np.ndarray, z: np.ndarray) -> tuple[str, str]:
 def score_all(root: Path, progress: Callable[[str], None] | None = None) -> list[Score]:
     """Score every case of ``root`` (phase 3): refuses until every answer is on disk."""
     cases = require_answers(root)
-    answers = {c: json.loads(answer_path(root, c).read_text()) for c in cases}
+    answers = read_answers(root, cases)
     truth = json.loads(truth_path(root).read_text())["cases"]
     if progress is not None:
         progress(f"scoring {len(cases)} answers")
