@@ -592,11 +592,12 @@ class _Problem:
         if radius > self.max_radius:
             raise SimulationDivergedError(f"a pole too close to the unit circle (|z| = "
                                           f"{radius:.6f}): its transient would not settle")
+        # a step through zero is refused as a divergence is (checked before the elements
+        # are built, which refuse such a gap: that ended the whole refinement)
+        if np.any(theta[self.layout.slices[4]] <= 0.0):
+            raise SimulationDivergedError("a clearance gap or a friction width reached zero")
         A, B, CL, DL = self.layout.matrices(theta)
         elements = self.layout.elements(theta, self.start.elements)
-        shapes = theta[self.layout.slices[4]]
-        if np.any(shapes <= 0.0):
-            raise SimulationDivergedError("a clearance gap or a friction width reached zero")
         state = {"theta": theta, "A": A, "B": B, "CL": CL, "DL": DL, "E": [], "bases": [],
                  "elements": elements, "motion": [], "offsets": []}
         loop_names = tuple(self.start.output_names[k] for k in self.layout.loop)

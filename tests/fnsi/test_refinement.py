@@ -24,6 +24,7 @@ from fnsi.refinement import (
     refine,
     reflect_unstable_poles,
 )
+from fnsi.simulation import SimulationDivergedError
 from fnsi.statespace import StateSpaceModel
 from fnsi.validation import compare
 
@@ -91,6 +92,23 @@ def test_jacobian_matches_finite_differences_on_the_loop_outputs(records):
     np.testing.assert_allclose(gram, J.T @ J, rtol=1e-9, atol=1e-12 * np.abs(gram).max())
     np.testing.assert_allclose(gradient, J.T @ problem.residual(theta), rtol=1e-9,
                                atol=1e-12 * np.abs(gradient).max())
+
+
+def test_a_step_through_a_zero_gap_is_refused_as_a_divergence(records):
+    """A Levenberg-Marquardt step that takes a gap to zero or below is a failed step the
+    minimisation retreats from (SimulationDivergedError), not a ValueError of the
+    element that ended the whole refinement (a stop whose contact lies past the mean of
+    a zero-mean motion pulls its gap towards zero)."""
+    model = identify(records[0], _settings()).model
+    u, y, _ = _averaged_record(model, records[0], 1)
+    modal, sizes = real_modal_form(model)
+    problem = _Problem(modal, sizes, u, y, np.arange(1, 80), 0, max_radius=1.0)
+    theta = problem.layout.pack(modal)
+    theta[problem.layout.slices[4]] = -0.1 * GAP
+    with pytest.raises(SimulationDivergedError, match="reached zero"):
+        problem.evaluate(theta)
+    # the step's residual is 10 times the measurement: rejected, the damping raised
+    assert np.linalg.norm(problem.residual(theta)) == pytest.approx(10.0)
 
 
 def _finite_difference_jacobian(problem: _Problem, theta: np.ndarray,
