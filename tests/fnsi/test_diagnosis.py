@@ -47,6 +47,7 @@ from fnsi.diagnosis import (
     _coefficient_quality,
     _complement,
     _each_needed,
+    _engaged_forms,
     _FollowUp,
     _friction_proposal,
     _Judge,
@@ -896,6 +897,22 @@ def test_clearance_forms_that_fit_alike_are_kept_for_validation():
     # 60 / 0.81 = 74.07: the other stop (70) and the asymmetric form (50 >= 48.6) alike
     assert _clearance_forms(chosen, options) == [(50.0, 1.2, 1.0), (70.0, 1.0, math.inf)]
     assert _clearance_forms(chosen, [chosen, (75.0, 1.0, 1.0), (48.0, 1.2, 1.0)]) == []
+
+
+def test_clearance_forms_are_those_the_motion_engages():
+    """For a relative motion within [-0.8, 1.5]: an asymmetric clearance whose gap lies
+    beyond the motion on its side fits as the stop of the other side and is dropped (its
+    gap is wherever the search stopped); a stop whose gap lies beyond the motion on the
+    other side is also offered as the symmetric clearance with that gap, which fits
+    identically here and which the symmetric search (within 0.8) cannot reach."""
+    symmetric, asymmetric = (100.0, 0.5, 0.5), (50.0, 0.7, 1.2)
+    stop, unengaged = (60.0, math.inf, 1.2), (60.0, 0.9, 1.2)
+    other_stop = (90.0, 0.6, math.inf)
+    assert _engaged_forms([symmetric, stop, other_stop, asymmetric], -0.8, 1.5) == [
+        symmetric, stop, (60.0, 1.2, 1.2), other_stop, asymmetric]
+    assert _engaged_forms([symmetric, unengaged], -0.8, 1.5) == [symmetric]
+    # a stop within the other side's reach is not a symmetric clearance's double
+    assert _engaged_forms([(60.0, math.inf, 0.7)], -0.8, 1.5) == [(60.0, math.inf, 0.7)]
 
 
 def test_softening_and_asymmetry_are_plausible_either_sign():
