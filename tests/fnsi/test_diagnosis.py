@@ -77,6 +77,7 @@ from fnsi.diagnosis import (
     rank_candidates,
     reidentified_proposals,
     screen_locations,
+    sign_counterparts,
     unvisited_proposals,
     validated_proposals,
 )
@@ -1114,6 +1115,34 @@ def test_the_other_dissipative_law_is_validated_where_one_takes_energy_in():
     assert counterpart_proposals([validated[0], validated[3]], proposals) == []
     assert counterpart_proposals([candidate(Effect.QUADRATIC_DAMPING, here, 654.0)],
                                  proposals) == []
+
+
+def test_a_contact_that_pulls_points_to_a_softening_spring():
+    """A clearance identified with a negative contact stiffness is the shape a softening
+    spring leaves beside the linear part's absorbed stiffness: the polynomial springs at
+    its place are validated, the one of its symmetry first."""
+    here = Location("x7")
+    laws = (Effect.CUBIC_STIFFNESS, Effect.QUADRATIC_STIFFNESS, Effect.COULOMB_FRICTION)
+    proposals = [Proposal(law, place, NonlinearElement("quadratic_damping", "x7"), 0.3)
+                 for place in (Location("x6"), here) for law in laws]
+
+    def clearance(mu, **gaps):
+        return helpful(Effect.CLEARANCE, here, NonlinearElement(
+            "clearance", "x7", coefficients=(mu,), **gaps))
+
+    def chosen(candidate):
+        return [(p.effect, p.location) for p in counterpart_proposals([candidate], proposals)]
+
+    assert chosen(clearance(-1.1e3, gap=5e-5)) == [(Effect.CUBIC_STIFFNESS, here),
+                                                   (Effect.QUADRATIC_STIFFNESS, here)]
+    assert chosen(clearance(-1.1e3, gap_negative=5e-5, side="negative")) == [
+        (Effect.QUADRATIC_STIFFNESS, here), (Effect.CUBIC_STIFFNESS, here)]
+    assert sign_counterparts(Effect.CLEARANCE, clearance(1.1e3, gap=5e-5).element) == ()
+    assert chosen(clearance(1.1e3, gap=5e-5)) == []
+    # where the revision already holds an element, a pulling contact says its shape is
+    # off: no spring is proposed there
+    held = (NonlinearElement("clearance", "x6", "x7", gap=4e-5, coefficients=(4e5,)),)
+    assert counterpart_proposals([clearance(-1.1e3, gap=5e-5)], proposals, held) == []
 
 
 def test_the_best_laws_where_reidentified_poles_place_the_effect_are_validated_too():
