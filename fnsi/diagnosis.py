@@ -1394,7 +1394,7 @@ def counterpart_proposals(candidates: Sequence[Candidate], proposals: Sequence[P
     # it scored the law that came out of the wrong sign best)
     wanted = [(c.location, law) for c in candidates if c.location is not None and free(c)
               for law in sign_counterparts(c.effect, c.element)]
-    rank = {key: k for k, key in reversed(list(enumerate(wanted)))}
+    rank = {key: k for k, key in enumerate(dict.fromkeys(wanted))}
     chosen = sorted((p for p in proposals if (p.location, p.effect) in rank
                      and (p.effect, p.location) not in validated),
                     key=lambda p: rank[p.location, p.effect])
