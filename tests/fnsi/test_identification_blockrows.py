@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from fnsi.identification import IdentificationSettings, check_settings, identify
+from fnsi.identification import IdentificationSettings, check_settings, identify, reaching
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.subspace import AUTO_MAX_BLOCK_ROWS, auto_block_rows, check_dimensions
@@ -71,6 +71,21 @@ def test_line_counts_and_resolved_block_rows(periodic):
     explicit = IdentificationSettings(band=BAND, block_rows=7)
     assert explicit.resolved(periodic) is explicit
     assert json.loads(json.dumps(settings.to_json()))["block_rows"] == "auto"
+
+
+def test_automatic_block_rows_reach_the_order_a_search_starts_from(periodic):
+    """Each basis function lowers the automatic count (80 lines, q = 9, l = 2: 7 rows,
+    orders up to 12); the order a model with one element fewer needed is reached by
+    raising it where the dimension rule allows, never beyond."""
+    settings = IdentificationSettings(band=BAND, elements=(spline(9),))
+    assert settings.resolved(periodic).block_rows == 7
+    assert reaching(periodic.layout, settings, 12) is settings
+    assert reaching(periodic.layout, settings, 20).block_rows == 11   # l (i - 1) = 20
+    # 16 rows for order 30: q i + n = 9 x 16 + 30 > the 160 columns of the signal
+    assert reaching(periodic.layout, settings, 30) is settings
+    for fixed in (dict(block_rows=7), dict(order=8)):
+        given = IdentificationSettings(band=BAND, elements=(spline(9),), **fixed)
+        assert reaching(periodic.layout, given, 20) is given
 
 
 @pytest.mark.parametrize("value", [1, 0, -3, 2.5, "10", "automatic", True, None, float("nan")])
