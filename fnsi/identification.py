@@ -613,10 +613,10 @@ def reaching(record: Measurement | Layout, settings: IdentificationSettings, ord
     if settings.block_rows != "auto" or settings.order != "auto":
         return settings
     outputs = record.select(settings.inputs, settings.outputs).n_outputs
-    rows = settings.resolved(record).block_rows
-    if outputs * (rows - 1) >= order:
+    if outputs * (settings.resolved(record).block_rows - 1) >= order:
         return settings
-    raised = dataclasses.replace(settings, block_rows=-(-order // outputs) + 1)
+    explicit = dataclasses.replace(settings, order=order).resolved(record)
+    raised = dataclasses.replace(settings, block_rows=explicit.block_rows)
     try:
         check_settings(record, raised)
     except ValueError:   # the data cannot carry that many rows
@@ -1011,6 +1011,7 @@ def identify(measurement: Measurement, settings: IdentificationSettings,
                if max_order >= 4 else None)
     by_simulation = _by_simulation(measurement, settings, decomposition, diagram, order_near)
     if (by_simulation is None and order_near is not None and diagram is not None
+            and settings.order_rule == "simulation"
             and (raised := reaching(measurement.layout, requested, order_near + 2))
             is not requested):
         # no order of the diagram could be simulated: one that reaches past the parent's
