@@ -81,11 +81,9 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-import os
 import re
 import time
 from collections.abc import Callable, Collection, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from enum import IntEnum, StrEnum
 from typing import TYPE_CHECKING
@@ -112,6 +110,7 @@ from fnsi.errors import json_float
 from fnsi.identification import identify
 from fnsi.modal import default_driving_points
 from fnsi.nonlinear import NonlinearElement
+from fnsi.parallel import serial_blas, thread_pool, usable_cpus
 from fnsi.refinement import STALL_WINDOW
 from fnsi.reidentified_screening import held_part, reidentified_scores
 from fnsi.screening import ScreeningProblem
@@ -119,6 +118,8 @@ from fnsi.statespace import StateSpaceModel
 from fnsi.units import ModelUnits
 
 if TYPE_CHECKING:
+    from concurrent.futures import ThreadPoolExecutor
+
     from fnsi.study import Evaluation, Revision, Study
 
 Progress = Callable[[float, str], None]
@@ -208,14 +209,6 @@ def candidate_locations(output_names: Sequence[str],
     return tuple(grounds + pairs)
 
 
-def _usable_cpus() -> int:
-    """CPUs this process may run on (its affinity where the system has one, as on Linux;
-    else every CPU, as on macOS and Windows)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
-
-
 @dataclass(frozen=True)
 class DiagnosisSettings:
     """Effort of each stage of the diagnosis.
@@ -251,7 +244,7 @@ class DiagnosisSettings:
     curve_locations: int = 1
     curve_intervals: int = 12
     include_missing_mode: bool = True
-    workers: int = field(default_factory=lambda: min(4, _usable_cpus()))
+    workers: int = field(default_factory=lambda: min(4, usable_cpus()))
 
     def __post_init__(self) -> None:
         for name in ("screening_intervals", "curve_intervals"):
@@ -1826,7 +1819,7 @@ class _Judge:
         wanted = sorted({k for k in keys if k is not None} - self.references.keys())
         fitted = sorted({(order, wide) for order, wide, _ in wanted}
                         - {(order, wide) for order, wide, _ in self.references})
-        with ThreadPoolExecutor(max_workers=workers) as pool:
+        with thread_pool(workers) as pool:
             for (order, wide), evaluation in zip(fitted, pool.map(
                     lambda k: _fitted_reference(study, base, *k), fitted), strict=True):
                 self.references[(order, wide, Treatment.FNSI)] = evaluation
@@ -2041,7 +2034,7 @@ def _trials(study: Study, revision: int, proposals: Sequence[Proposal], judge: _
     identification and simulations of its own, most of it in compiled code and LAPACK
     that release the interpreter), then the references they are judged against
     (:meth:`_Judge.identify_references`)."""
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    with thread_pool(workers) as pool:
         trials = list(pool.map(lambda p: _trial(study, revision, p, judge,
                                                 by_location.get(p.location)), proposals))
     judge.identify_references(study, revision, [t.reference for t in trials], workers)
@@ -2071,7 +2064,7 @@ def _treated(study: Study, revision: int, trials: Sequence[_Trial], judge: _Judg
         evaluation, treatment = judge.treated(study, revision, trial.evaluation)
         return replace(trial, evaluation=evaluation, treatment=treatment)
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    with thread_pool(workers) as pool:
         return list(pool.map(treated, trials))
 
 
@@ -2575,10 +2568,22 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     Returns
     -------
     Diagnosis
+
+    Notes
+    -----
+    The BLAS runs serially throughout (:func:`fnsi.parallel.serial_blas`): the
+    diagnosis's threads (``settings.workers``) are its parallelism, and its answer does
+    not depend on their number.
     """
     settings = settings or DiagnosisSettings()
-    report = progress or (lambda fraction, message: None)
-    index = revision % len(study.revisions)
+    with serial_blas():
+        return _diagnosed(study, revision % len(study.revisions), settings,
+                          progress or (lambda fraction, message: None))
+
+
+def _diagnosed(study: Study, index: int, settings: DiagnosisSettings, report: Progress
+               ) -> Diagnosis:
+    """:func:`diagnose` of revision ``index``, reporting to ``report``."""
     base = study.revisions[index]
     # A revision that could not be simulated (even repaired) is still diagnosed: its
     # error counts as infinite and a candidate must then reach near the floor.
@@ -2602,7 +2607,7 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
     compared = distinct_locations(problem, kind_locations(scores, settings.top_locations))
     # each location's gap searches are some 300 small fits of its own (a third of a
     # 5-DOF chain's diagnosis when a clearance is compared at seven places)
-    with ThreadPoolExecutor(max_workers=settings.workers) as pool:
+    with thread_pool(settings.workers) as pool:
         kinds = list(pool.map(functools.partial(compare_kinds, problem), compared))
     proposals = sorted((p for found in kinds for p in found if _law(p.element) not in held),
                        key=lambda p: -p.reduction)
@@ -2666,10 +2671,9 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
         first += 1
     # each trial is an identification and simulations of its own, most of it in
     # compiled code and LAPACK that release the interpreter: validated side by side
-    pool = ThreadPoolExecutor(max_workers=settings.workers)
     validated = itertools.count(settings.curve_locations)
 
-    def validate(tasks: Sequence[tuple[str, Callable]]) -> list:
+    def validate(pool: ThreadPoolExecutor, tasks: Sequence[tuple[str, Callable]]) -> list:
         futures = [pool.submit(task) for _, task in tasks]
         results = []
         for (name, _), future in zip(tasks, futures, strict=True):
@@ -2677,16 +2681,15 @@ def diagnose(study: Study, revision: int = -1, settings: DiagnosisSettings | Non
             report(0.4 + 0.55 * next(validated) / steps, f"validated {name}")
         return results
 
-    try:
-        done = validate(work[:first])
+    # a cancelled diagnosis (report raised) drops the trials not started
+    with thread_pool(settings.workers) as pool:
+        done = validate(pool, work[:first])
         mode = done.pop() if settings.include_missing_mode else None
         rest = work[first:]
         if rest and (answer := _answered(study, done, elements_judge)) is not None:
             notes.append(_unvalidated_words([name for name, _ in rest], answer, floor))
         elif rest:
-            done += validate(rest)
-    finally:   # a cancelled diagnosis (report raised) drops the trials not started
-        pool.shutdown(wait=True, cancel_futures=True)
+            done += validate(pool, rest)
     report(0.95, "refining the trials that miss the noise floor, unless one reaches it")
     trials = _treated(study, index, done, elements_judge, settings.workers)
     report(0.96, "identifying the revision at the candidates' orders")

@@ -22,7 +22,6 @@ proposed claimed nothing (:func:`fnsi.diagnosis.reidentified_proposals`).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -30,6 +29,7 @@ import numpy as np
 from fnsi.identification import IdentificationSettings, identify
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
+from fnsi.parallel import thread_pool
 from fnsi.screening import ScreeningProblem
 from fnsi.statespace import StateSpaceModel
 
@@ -98,7 +98,7 @@ def reidentified_scores(measurement: Measurement, settings: IdentificationSettin
         residual = problem.model_residual(model)
         return ReidentifiedScore(key, float(np.sum(np.abs(residual) ** 2)), model)
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    with thread_pool(workers) as pool:
         scores = [s for s in pool.map(score, trials) if s is not None]
     return sorted(scores, key=lambda s: s.cost)
 
