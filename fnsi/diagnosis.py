@@ -1655,7 +1655,7 @@ def claim_rule(candidates: int) -> str:
     """The claim rule in words, with its numbers (:mod:`fnsi.claim`)."""
     return (f"a candidate is claimed when its improvement of the validation error is "
             f"significant against the period-to-period noise (one-sided z test on the "
-            f"noise-weighted squared error per line and channel, family-wise level "
+            f"squared error pooled over lines and channels, family-wise level "
             f"{100 * ALPHA:g} % over the {candidates} candidates: z > "
             f"{critical_z(candidates):.2g}), when each parameter it adds lowers the RMS "
             f"error above the noise floor by at least {100 * FALL_PER_PARAMETER:.0f} % and "
