@@ -38,7 +38,11 @@ def serial_blas() -> Iterator[None]:
 
     Serial in every task, whatever the number of workers, so that an answer does not
     depend on it, nor on ``OPENBLAS_NUM_THREADS``, to the last bit: a BLAS splits its
-    work by its thread count, and the rounding moves with it."""
+    work by its thread count, and the rounding moves with it. The limit is the
+    process's: a context closed in one thread lifts it for the others too, so that work
+    run side by side in one process's own threads (not the service's jobs, each in a
+    process of its own) may see it lifted early; only the speed and the last bits
+    depend on that."""
     with threadpool_limits(limits=1, user_api="blas"):
         yield
 
