@@ -57,6 +57,7 @@ from fnsi.input_conditioning import input_warning
 from fnsi.measurement import Measurement
 from fnsi.nonlinear import NonlinearElement
 from fnsi.offsets import Offsets, measured_offsets, remove_offsets
+from fnsi.parallel import serial_blas
 from fnsi.simulation_order import allowed_square
 from fnsi.spectra import kept_record
 from fnsi.statespace import StateSpaceModel
@@ -841,7 +842,12 @@ class Study:
 
     def _append(self, elements: tuple[NonlinearElement, ...], order: int | str, note: str,
                 progress: Progress | None, order_near: int | None = None) -> Revision:
-        evaluation = self.kept_evaluation(elements, order, progress, order_near=order_near)
+        # serial, as the diagnosis runs (fnsi.parallel): on a study's matrices OpenBLAS's
+        # threads cost more than they save, and the revision's numbers then do not
+        # depend on their count
+        with serial_blas():
+            evaluation = self.kept_evaluation(elements, order, progress,
+                                              order_near=order_near)
         result = evaluation.identification
         revision = Revision(
             number=len(self.revisions), note=note, order=order,

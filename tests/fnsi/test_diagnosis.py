@@ -1368,9 +1368,10 @@ def test_a_kept_trial_is_the_revision_the_study_would_add():
     judge = _Judge(base.nrmse_percent, study.noise_floor_percent, study.validation_spectra,
                    base.simulated, 1, kept=True)
     given = dataclasses.replace(truth, coefficients=None)
-    trial = _trial(study, 0, Proposal(Effect.CUBIC_STIFFNESS, Location("x3"), given, 0.5),
-                   judge, None)
-    kept = _judged_candidate(study, 0, trial, judge)
+    with serial_blas():   # as the diagnosis and the study compute it: the same rounding
+        trial = _trial(study, 0, Proposal(Effect.CUBIC_STIFFNESS, Location("x3"), given,
+                                          0.5), judge, None)
+        kept = _judged_candidate(study, 0, trial, judge)
     revision = study.add_revision(add=[given])
     assert kept.validation_nrmse_percent == revision.nrmse_percent
     assert kept.order == revision.identified_order
